@@ -1,0 +1,1 @@
+"""analysis: see README.md (work in progress, tracked by its issue)."""

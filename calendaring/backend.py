@@ -1,0 +1,115 @@
+"""The only place that starts the Taichi runtime.
+
+Importing any calendaring module has no Taichi side effects; call :func:`init_taichi`
+(or let :class:`calendaring.simulation.Simulation` call it) before building pools.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import taichi as ti
+
+from calendaring.errors import ConfigError
+
+_STATE: dict = {"settings": None}
+
+
+@dataclass(frozen=True)
+class BackendInfo:
+    """What :func:`init_taichi` started."""
+
+    arch: str  # "cpu" or "cuda"
+    precision: str  # "f64"
+    threads: int  # CPU threads (0 = Taichi default)
+    seed: int
+    cache_dir: str
+
+
+def default_cache_dir() -> Path:
+    """Offline kernel cache directory (``$CALENDARING_KERNEL_CACHE`` or ~/.cache)."""
+    env = os.environ.get("CALENDARING_KERNEL_CACHE")
+    if env:
+        return Path(env)
+    return Path.home() / ".cache" / "calendaring" / "taichi"
+
+
+def init_taichi(
+    arch: str = "cpu",
+    precision: str = "f64",
+    seed: int = 0,
+    threads: int = 0,
+    offline_cache: bool = True,
+    cache_dir: str | Path | None = None,
+    debug: bool = False,
+) -> BackendInfo:
+    """Start Taichi once per process; later calls with the same settings are no-ops.
+
+    Args:
+        arch: "cpu", "cuda" or "auto" (CUDA when available, else CPU).
+        precision: "f64" (default float type of every kernel).
+        seed: Taichi's random seed (``ti.random``).
+        threads: CPU threads, 0 = all cores.
+        offline_cache: keep compiled kernels on disk between processes.
+        cache_dir: where the offline cache lives (default :func:`default_cache_dir`).
+        debug: Taichi debug mode (bounds checks; slow).
+
+    Raises:
+        ConfigError: unknown arch or precision, or CUDA requested but unavailable.
+        RuntimeError: Taichi already started with different settings (fields allocated
+            under the old runtime would be invalidated).
+    """
+    if arch not in ("cpu", "cuda", "auto"):
+        raise ConfigError("numerics.arch", arch, "cpu, cuda or auto")
+    if precision != "f64":
+        raise ConfigError("numerics.precision", precision, "f64")
+    cache = str(cache_dir or default_cache_dir())
+    key = (arch, precision, seed, threads, offline_cache, cache, debug)
+    if _STATE["settings"] is not None:
+        if _STATE["settings"][0] == key:
+            return _STATE["settings"][1]
+        raise RuntimeError(
+            f"Taichi already initialised with {_STATE['settings'][0]}; requested {key}. "
+            "Call calendaring.backend.reset_taichi() first (this invalidates every pool)."
+        )
+    if arch == "cuda":
+        ti_arch = ti.cuda
+    elif arch == "auto":
+        ti_arch = ti.gpu
+    else:
+        ti_arch = ti.cpu
+    kwargs = dict(
+        arch=ti_arch,
+        default_fp=ti.f64,
+        default_ip=ti.i32,
+        random_seed=seed,
+        offline_cache=offline_cache,
+        offline_cache_file_path=cache,
+        debug=debug,
+        log_level=ti.WARN,
+    )
+    if threads:
+        kwargs["cpu_max_num_threads"] = threads
+    ti.init(**kwargs)
+    actual = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
+    if arch == "cuda" and actual != "cuda":
+        ti.reset()
+        raise ConfigError("numerics.arch", arch, "cpu or auto: no CUDA device is available")
+    info = BackendInfo(arch=actual, precision=precision, threads=threads, seed=seed,
+                       cache_dir=cache)
+    _STATE["settings"] = (key, info)
+    return info
+
+
+def current_backend() -> BackendInfo | None:
+    """The running backend, or None before :func:`init_taichi`."""
+    return _STATE["settings"][1] if _STATE["settings"] else None
+
+
+def reset_taichi() -> None:
+    """Shut the runtime down (every field and pool becomes invalid)."""
+    if _STATE["settings"] is not None:
+        ti.reset()
+        _STATE["settings"] = None

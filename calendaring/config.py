@@ -1,0 +1,398 @@
+"""Simulation configuration: frozen dataclasses loaded strictly from TOML or dicts.
+
+Host-only module: it imports neither taichi nor torch. Every value is SI. An unknown key,
+a wrong type or an out-of-range value raises :class:`~calendaring.errors.ConfigError`
+naming the dotted key, the value and the allowed range.
+
+Defaults are the paper's (Chen et al., Tables 1 and 4) as resolved in the physics
+specification (``physics-spec.md`` sections 1, 2, 3 and 6). Choices the paper leaves
+open are marked ``[A]`` in the field comments; each is a named key so it can be switched
+and is recorded in every run file through the config JSON.
+
+Example:
+    >>> cfg = load_config_dict({"numerics": {"timestep_fraction": 0.02}})
+    >>> cfg.numerics.timestep_fraction
+    0.02
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from calendaring.errors import ConfigError
+
+ADHESION_MODES = ("surface_energy_ap", "jkr_R", "direct_kadh")
+DAMPING_MODES = ("tangent_sqrt56", "literal_k1")
+ARCHES = ("cpu", "cuda", "auto")
+PRECISIONS = ("f64",)
+
+
+def _check(key: str, value: float, ok: bool, allowed: str) -> None:
+    if not ok or (isinstance(value, float) and math.isnan(value)):
+        raise ConfigError(key, value, allowed)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MaterialConfig:
+    """Elastic solid (paper Table 1). SI units."""
+
+    density: float  # rho [kg m^-3]
+    youngs_modulus: float  # E [Pa]
+    poisson_ratio: float  # nu [-], -1 < nu < 0.5
+    breakable: bool = False  # particles of this material may break (breakage issue)
+
+    def __post_init__(self) -> None:
+        _check("density", self.density, self.density > 0, "> 0 kg/m^3")
+        _check("youngs_modulus", self.youngs_modulus, self.youngs_modulus > 0, "> 0 Pa")
+        _check(
+            "poisson_ratio", self.poisson_ratio, -1.0 < self.poisson_ratio < 0.5, "in (-1, 0.5)"
+        )
+
+    @property
+    def shear_modulus(self) -> float:
+        """G = E / (2 (1 + nu)) [Pa]."""
+        return self.youngs_modulus / (2.0 * (1.0 + self.poisson_ratio))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PairConfig:
+    """Contact parameters of one pair of materials (EEPA + friction + rolling). SI units."""
+
+    plasticity_ratio: float  # lambda_p = 1 - k1/k2 [-], 0 <= lambda_p < 1 (0 -> Hertz)
+    surface_energy: float = 0.0  # Delta gamma [J m^-2], >= 0 (0 -> no adhesion)
+    restitution: float = 0.25  # e [-], 0 < e <= 1 (paper: 0.25 for all pairs)
+    friction: float = 0.12  # mu_s [-], >= 0 (paper: 0.12)
+    rolling_friction: float = 0.01  # mu_r [-], >= 0 (paper: 0.01)
+    pull_off_force: float = 0.0  # f0 [N], <= 0 (EEPA constant pull-off; [A] 0)
+    adhesion_stiffness: float = 0.0  # k_adh [N m^-chi], used only by adhesion_mode direct_kadh
+
+    def __post_init__(self) -> None:
+        _check(
+            "plasticity_ratio",
+            self.plasticity_ratio,
+            0.0 <= self.plasticity_ratio < 1.0,
+            "in [0, 1)",
+        )
+        _check("surface_energy", self.surface_energy, self.surface_energy >= 0, ">= 0 J/m^2")
+        _check("restitution", self.restitution, 0.0 < self.restitution <= 1.0, "in (0, 1]")
+        _check("friction", self.friction, self.friction >= 0, ">= 0")
+        _check("rolling_friction", self.rolling_friction, self.rolling_friction >= 0, ">= 0")
+        _check("pull_off_force", self.pull_off_force, self.pull_off_force <= 0, "<= 0 N")
+        _check(
+            "adhesion_stiffness", self.adhesion_stiffness, self.adhesion_stiffness >= 0, ">= 0"
+        )
+
+
+def _paper_materials() -> dict[str, MaterialConfig]:
+    # Paper Table 1: NMC622 active material (AM) and carbon black (CB).
+    return {
+        "AM": MaterialConfig(
+            density=4740.0, youngs_modulus=168.30e9, poisson_ratio=0.246, breakable=True
+        ),
+        "CB": MaterialConfig(density=2200.0, youngs_modulus=0.65e9, poisson_ratio=0.200),
+    }
+
+
+def _paper_pairs() -> dict[str, PairConfig]:
+    # Plasticity ratios and surface energies: Schreiner et al. 2020, quoted by the paper.
+    return {
+        "AM-AM": PairConfig(plasticity_ratio=0.8, surface_energy=5.0),
+        "AM-CB": PairConfig(plasticity_ratio=0.9, surface_energy=20.0),
+        "CB-CB": PairConfig(plasticity_ratio=0.975, surface_energy=60.0),
+    }
+
+
+def _paper_plate_pairs() -> dict[str, PairConfig]:
+    # [A] spec section 6: the particle's own-pair plasticity ratio, no adhesion.
+    return {
+        "AM": PairConfig(plasticity_ratio=0.8, surface_energy=0.0),
+        "CB": PairConfig(plasticity_ratio=0.975, surface_energy=0.0),
+    }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PlatesConfig:
+    """The two calendering plates (paper: steel roll on top, aluminium foil below)."""
+
+    top: MaterialConfig = field(
+        default_factory=lambda: MaterialConfig(
+            density=7900.0, youngs_modulus=208e9, poisson_ratio=0.3
+        )
+    )
+    bottom: MaterialConfig = field(
+        default_factory=lambda: MaterialConfig(
+            density=2700.0, youngs_modulus=69e9, poisson_ratio=0.3
+        )
+    )
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ContactConfig:
+    """EEPA normal law, tangential spring and rolling resistance (spec sections 2-3)."""
+
+    loading_exponent: float = 1.5  # n [-]: 1 (linear EEPA) or 1.5 (Hertzian EEPA)
+    adhesive_exponent: float = 1.5  # chi [-] of the adhesive branch ([A] chi = n)
+    tangential_stiffness_ratio: float = 2.0 / 3.0  # xi_t [-], k_t = xi_t 8 G* sqrt(R* delta)
+    adhesion_mode: str = "surface_energy_ap"  # [A] Delta gamma -> k_adh map, spec 2.3
+    damping_mode: str = "tangent_sqrt56"  # [A] normal damping form, spec 2.4
+    pairs: dict[str, PairConfig] = field(default_factory=_paper_pairs)  # keys "A-B"
+    plate_pairs: dict[str, PairConfig] = field(default_factory=_paper_plate_pairs)  # keys "A"
+
+    def __post_init__(self) -> None:
+        n = self.loading_exponent
+        _check("loading_exponent", n, n in (1.0, 1.5), "1.0 or 1.5")
+        chi = self.adhesive_exponent
+        _check("adhesive_exponent", chi, 1.0 <= chi <= 2.0, "in [1, 2]")
+        xi = self.tangential_stiffness_ratio
+        _check("tangential_stiffness_ratio", xi, 0.0 < xi <= 2.0, "in (0, 2]")
+        _check("adhesion_mode", self.adhesion_mode, self.adhesion_mode in ADHESION_MODES,
+               f"one of {ADHESION_MODES}")
+        _check("damping_mode", self.damping_mode, self.damping_mode in DAMPING_MODES,
+               f"one of {DAMPING_MODES}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DomainConfig:
+    """Periodic cell (x, y) bounded in z by the plates. SI units."""
+
+    cell_x: float = 100e-6  # periodic length along x [m]
+    cell_y: float = 100e-6  # periodic length along y [m]
+    height: float = 200e-6  # z extent of the domain above the bottom plate [m]
+    gravity: float = 9.81  # magnitude of gravitational acceleration along -z [m s^-2]
+
+    def __post_init__(self) -> None:
+        _check("cell_x", self.cell_x, self.cell_x > 0, "> 0 m")
+        _check("cell_y", self.cell_y, self.cell_y > 0, "> 0 m")
+        _check("height", self.height, self.height > 0, "> 0 m")
+        _check("gravity", self.gravity, self.gravity >= 0, ">= 0 m/s^2")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class NumericsConfig:
+    """Backend, time step and safety limits."""
+
+    arch: str = "cpu"  # Taichi backend: cpu, cuda or auto
+    precision: str = "f64"  # floating-point precision of the state (f64 only, see README)
+    threads: int = 0  # CPU threads (0 = all cores)
+    seed: int = 0  # random seed of the run
+    timestep_fraction: float = 0.04  # dt / Rayleigh time of the smallest particle [-]
+    density_scaling: float = 1.0  # mass scaling factor s (rho -> s rho) [-]; recorded in outputs
+    skin: float = 0.3e-6  # Verlet skin [m]
+    rebuild_check_interval: int = 10  # steps between host checks of the device flags
+    max_overlap_fraction: float = 0.5  # stop if overlap > this x smaller radius [-]
+    pairs_per_particle: int = 12  # initial candidate-pair capacity per particle slot
+    track_energy: bool = True  # accumulate the energy ledger every step
+    offline_cache: bool = True  # keep compiled kernels on disk
+
+    def __post_init__(self) -> None:
+        _check("arch", self.arch, self.arch in ARCHES, f"one of {ARCHES}")
+        _check("precision", self.precision, self.precision in PRECISIONS,
+               f"one of {PRECISIONS} (f32 needs an f64 parity test first)")
+        _check("threads", self.threads, self.threads >= 0, ">= 0 (0 = all cores)")
+        f = self.timestep_fraction
+        _check("timestep_fraction", f, 0.0 < f <= 0.3, "in (0, 0.3]")
+        s = self.density_scaling
+        _check("density_scaling", s, 1.0 <= s <= 1e8, "in [1, 1e8]")
+        _check("skin", self.skin, self.skin > 0, "> 0 m")
+        k = self.rebuild_check_interval
+        _check("rebuild_check_interval", k, 1 <= k <= 1000, "in [1, 1000]")
+        o = self.max_overlap_fraction
+        _check("max_overlap_fraction", o, 0.0 < o <= 1.0, "in (0, 1]")
+        p = self.pairs_per_particle
+        _check("pairs_per_particle", p, 1 <= p <= 1000, "in [1, 1000]")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SimConfig:
+    """Everything the DEM engine needs. See README "Configuration"."""
+
+    domain: DomainConfig = field(default_factory=DomainConfig)
+    materials: dict[str, MaterialConfig] = field(default_factory=_paper_materials)
+    plates: PlatesConfig = field(default_factory=PlatesConfig)
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    numerics: NumericsConfig = field(default_factory=NumericsConfig)
+
+    def __post_init__(self) -> None:
+        names = list(self.materials)
+        if not names:
+            raise ConfigError("materials", {}, "at least one material")
+        for name in names:
+            if "-" in name or not name:
+                raise ConfigError(f"materials.{name}", name, "a non-empty name without '-'")
+        needed = {pair_key(a, b) for a in names for b in names}
+        for key in self.contact.pairs:
+            a, _, b = key.partition("-")
+            if a not in names or b not in names:
+                raise ConfigError(f"contact.pairs.{key}", key, f"pairs of {names}")
+        given = {pair_key(*k.split("-", 1)) for k in self.contact.pairs}
+        for key in sorted(needed - given):
+            raise ConfigError(f"contact.pairs.{key}", None, "a [contact.pairs] entry per pair")
+        for key in self.contact.plate_pairs:
+            if key not in names:
+                raise ConfigError(f"contact.plate_pairs.{key}", key, f"one of {names}")
+        for name in names:
+            if name not in self.contact.plate_pairs:
+                raise ConfigError(f"contact.plate_pairs.{name}", None, "an entry per material")
+
+    @property
+    def material_names(self) -> list[str]:
+        """Material names in index order (index 0 first)."""
+        return list(self.materials)
+
+    def pair(self, a: str, b: str) -> PairConfig:
+        """Contact parameters of the pair (a, b), order-insensitive."""
+        for key, value in self.contact.pairs.items():
+            x, _, y = key.partition("-")
+            if {x, y} == {a, b} and (x == y) == (a == b):
+                return value
+        raise KeyError(f"no contact.pairs entry for {a}-{b}")
+
+
+def pair_key(a: str, b: str) -> str:
+    """Canonical pair key ("AM-CB" and "CB-AM" -> "AM-CB")."""
+    return "-".join(sorted((a, b)))
+
+
+# ---------------------------------------------------------------- strict loading
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(tp: Any, value: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(key, value, f"a table of {tp.__name__} fields")
+        return _from_dict(tp, value, key)
+    if origin is dict:
+        _, vt = typing.get_args(tp)
+        if not isinstance(value, dict):
+            raise ConfigError(key, value, "a table")
+        return {str(k): _convert(vt, v, f"{key}.{k}") for k, v in value.items()}
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _convert(args[0], value, key)
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(key, value, "a number")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(key, value, "an integer")
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(key, value, "true or false")
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(key, value, "a string")
+        return value
+    raise TypeError(f"unsupported config type {_type_name(tp)} at {key}")
+
+
+def _from_dict(cls: type, data: dict, prefix: str = "") -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for k in data:
+        if k not in names:
+            full = f"{prefix}.{k}" if prefix else str(k)
+            raise ConfigError(full, data[k], f"one of the keys {sorted(names)}")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name in data:
+            key = f"{prefix}.{f.name}" if prefix else f.name
+            kwargs[f.name] = _convert(hints[f.name], data[f.name], key)
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:
+        raise err.with_prefix(prefix) from None
+    except TypeError as err:  # a required field is missing
+        raise ConfigError(prefix or cls.__name__, data, f"all required fields ({err})") from None
+
+
+def _merge(base: dict, update: dict) -> dict:
+    out = dict(base)
+    for k, v in update.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def to_dict(cfg: Any) -> dict:
+    """Plain nested dict of a config (JSON- and TOML-serialisable)."""
+    return dataclasses.asdict(cfg)
+
+
+def load_config_dict(data: dict, base: SimConfig | None = None) -> SimConfig:
+    """Build a :class:`SimConfig` from a nested dict layered over ``base`` (default: paper).
+
+    Tables given in ``data`` replace only the keys they name, so a TOML file may set one
+    value and keep every other default.
+    """
+    base_dict = to_dict(base if base is not None else SimConfig())
+    return _from_dict(SimConfig, _merge(base_dict, data))
+
+
+def load_config(path: str | Path, base: SimConfig | None = None) -> SimConfig:
+    """Read a TOML file strictly (see :func:`load_config_dict`)."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(str(path), "<file>", f"valid TOML ({err})") from None
+    return load_config_dict(data, base)
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse ``key=value`` (value in TOML syntax; bare words are strings)."""
+    if "=" not in text:
+        raise ConfigError(text, text, "the form key=value")
+    key, raw = (s.strip() for s in text.split("=", 1))
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    return key, value
+
+
+def with_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
+    """Return ``cfg`` with dotted-key overrides applied, e.g. ``{"numerics.seed": 3}``."""
+    data = to_dict(cfg)
+    for dotted, value in overrides.items():
+        node = data
+        parts = dotted.split(".")
+        for i, part in enumerate(parts[:-1]):
+            if not isinstance(node, dict) or part not in node:
+                raise ConfigError(".".join(parts[: i + 1]), value, "an existing config table")
+            node = node[part]
+        if not isinstance(node, dict) or parts[-1] not in node:
+            raise ConfigError(dotted, value, "an existing config key")
+        node[parts[-1]] = value
+    return _from_dict(SimConfig, data)
+
+
+def config_json(cfg: Any) -> str:
+    """Canonical JSON (sorted keys) of a config."""
+    return json.dumps(to_dict(cfg), sort_keys=True, separators=(",", ":"))
+
+
+def config_hash(cfg: Any) -> str:
+    """sha256 of the canonical JSON: the run ID of a configuration."""
+    return hashlib.sha256(config_json(cfg).encode()).hexdigest()

@@ -1,0 +1,209 @@
+"""Candidate-pair table with contact history that survives every neighbour-list rebuild.
+
+Pairs are stored in CSR form by owner: the owner of a pair is its lower slot, so owner ``i``
+holds the pairs ``seg_start[i] .. seg_start[i] + seg_count[i]``. A pair is a candidate while
+the centre distance is below ``r_i + r_j + skin`` (Verlet list).
+
+History (``delta_max``, tangential ``spring``, the previous overlap and hysteretic force used
+by the work integrals, and the per-contact stressing work ``stress_work`` needed by breakage)
+is keyed by the stable ids: after a rebuild each new pair (i, j) looks for the old entry with
+the same partner id in i's old segment (a linear scan over at most a few entries) and copies
+it, or starts from zero. A pair whose overlap becomes <= 0 has its history cleared by the
+force kernel (the contact ended).
+
+Capacity: the pair count is computed before filling; if it exceeds the capacity the host
+grows the table (copying the history) and rebuilds, never truncating.
+"""
+
+
+import numpy as np
+import taichi as ti
+
+PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "stress_work", "normal_force")
+HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "stress_work")
+
+
+@ti.data_oriented
+class ContactTable:
+    """Candidate pairs and their contact history.
+
+    Args:
+        particle_capacity: pool capacity.
+        pair_capacity: number of candidate pairs the table can hold.
+    """
+
+    def __init__(self, particle_capacity: int, pair_capacity: int) -> None:
+        self.particle_capacity = int(particle_capacity)
+        self.capacity = int(pair_capacity)
+        fb = ti.FieldsBuilder()
+        self.owner = ti.field(ti.i32)
+        self.partner = ti.field(ti.i32)
+        self.partner_id = ti.field(ti.i64)
+        self.old_partner_id = ti.field(ti.i64)
+        for f in (self.owner, self.partner, self.partner_id, self.old_partner_id):
+            fb.dense(ti.i, self.capacity).place(f)
+        for name in PAIR_F64:
+            f = ti.field(ti.f64)
+            fb.dense(ti.i, self.capacity).place(f)
+            setattr(self, name, f)
+        for name in HISTORY_F64:
+            f = ti.field(ti.f64)
+            fb.dense(ti.i, self.capacity).place(f)
+            setattr(self, "old_" + name, f)
+        self.spring = ti.Vector.field(3, ti.f64)
+        self.old_spring = ti.Vector.field(3, ti.f64)
+        fb.dense(ti.i, self.capacity).place(self.spring)
+        fb.dense(ti.i, self.capacity).place(self.old_spring)
+        self.seg_start = ti.field(ti.i32)
+        self.seg_count = ti.field(ti.i32)
+        self.old_seg_start = ti.field(ti.i32)
+        self.old_seg_count = ti.field(ti.i32)
+        for f in (self.seg_start, self.seg_count, self.old_seg_start, self.old_seg_count):
+            fb.dense(ti.i, self.particle_capacity).place(f)
+        self.n_pairs = ti.field(ti.i32)
+        self.required = ti.field(ti.i32)
+        fb.place(self.n_pairs, self.required)
+        self._tree = fb.finalize()
+
+    def destroy(self) -> None:
+        """Free the device memory."""
+        if self._tree is not None:
+            self._tree.destroy()
+            self._tree = None
+
+    # ------------------------------------------------------------- host helpers
+    def history_arrays(self) -> dict:
+        """Current pairs and their history as NumPy arrays (host sync)."""
+        n = int(self.n_pairs[None])
+        out = {name: getattr(self, name).to_numpy()[:n] for name in
+               ("owner", "partner", "partner_id", *PAIR_F64)}
+        out["spring"] = self.spring.to_numpy()[:n]
+        return out
+
+    def copy_from(self, other: "ContactTable") -> None:
+        """Copy pairs, history and segments from a smaller table (used when growing)."""
+        n = int(other.n_pairs[None])
+        for name in ("owner", "partner", "partner_id", *PAIR_F64):
+            arr = getattr(self, name).to_numpy()
+            arr[:n] = getattr(other, name).to_numpy()[:n]
+            getattr(self, name).from_numpy(arr)
+        sp = self.spring.to_numpy()
+        sp[:n] = other.spring.to_numpy()[:n]
+        self.spring.from_numpy(sp)
+        for name in ("seg_start", "seg_count"):
+            getattr(self, name).from_numpy(getattr(other, name).to_numpy())
+        self.n_pairs[None] = n
+
+    # ------------------------------------------------------------- rebuild kernels
+    @ti.kernel
+    def save_history(self, pool: ti.template()):
+        """Move the current pairs' history into the old buffers before a rebuild."""
+        for c in range(self.n_pairs[None]):
+            self.old_partner_id[c] = self.partner_id[c]
+            self.old_spring[c] = self.spring[c]
+            self.old_delta_max[c] = self.delta_max[c]
+            self.old_delta_prev[c] = self.delta_prev[c]
+            self.old_fhys_prev[c] = self.fhys_prev[c]
+            self.old_stress_work[c] = self.stress_work[c]
+        for i in range(pool.n_slots[None]):
+            self.old_seg_start[i] = self.seg_start[i]
+            self.old_seg_count[i] = self.seg_count[i]
+
+    @ti.func
+    def _visit(self, pool: ti.template(), grid: ti.template(), i, skin, write: ti.template()):
+        """Count (or write) the candidate partners j > i of particle i."""
+        pi = pool.position[i]
+        ri = pool.radius[i]
+        cx, cy, cz = grid.cell_coords(pi)
+        k = 0
+        base = self.seg_start[i]
+        x0, x1, xa = grid.span(grid.nx, cx)
+        y0, y1, ya = grid.span(grid.ny, cy)
+        for oz in range(ti.max(cz - 1, 0), ti.min(cz + 2, grid.nz)):
+            for oy in range(y0, y1):
+                for ox in range(x0, x1):
+                    ix = ox if xa else (ox + grid.nx) % grid.nx
+                    iy = oy if ya else (oy + grid.ny) % grid.ny
+                    c = grid.cell_index(ix, iy, oz)
+                    for s in range(grid.start[c], grid.start[c + 1]):
+                        j = grid.sorted[s]
+                        if j > i:
+                            d = grid.minimum_image(pool.position[j] - pi)
+                            cut = ri + pool.radius[j] + skin
+                            if d.norm_sqr() < cut * cut:
+                                if ti.static(write):
+                                    if base + k < self.capacity:
+                                        self.owner[base + k] = i
+                                        self.partner[base + k] = j
+                                        self.partner_id[base + k] = pool.pid[j]
+                                k += 1
+        return k
+
+    @ti.kernel
+    def count_candidates(self, pool: ti.template(), grid: ti.template(), skin: ti.f64) -> ti.i32:
+        """Count candidates per owner, prefix-sum the segments; returns the total."""
+        for i in range(pool.n_slots[None]):
+            n = 0
+            if pool.alive[i]:
+                n = self._visit(pool, grid, i, skin, False)
+            self.seg_count[i] = n
+        ti.loop_config(serialize=True)
+        for i in range(pool.n_slots[None]):
+            if i == 0:
+                self.required[None] = 0
+            self.seg_start[i] = self.required[None]
+            self.required[None] += self.seg_count[i]
+        return self.required[None]
+
+    @ti.kernel
+    def fill_candidates(self, pool: ti.template(), grid: ti.template(), skin: ti.f64):
+        """Write the candidate pairs into their owners' segments."""
+        for i in range(pool.n_slots[None]):
+            if pool.alive[i]:
+                self._visit(pool, grid, i, skin, True)
+        self.n_pairs[None] = self.required[None]
+
+    @ti.kernel
+    def remap_history(self, pool: ti.template()):
+        """Give each new pair the history of the same (owner, partner id) pair, if any."""
+        for c in range(self.n_pairs[None]):
+            i = self.owner[c]
+            key = self.partner_id[c]
+            found = -1
+            for o in range(self.old_seg_start[i], self.old_seg_start[i] + self.old_seg_count[i]):
+                if self.old_partner_id[o] == key:
+                    found = o
+            if found >= 0:
+                self.spring[c] = self.old_spring[found]
+                self.delta_max[c] = self.old_delta_max[found]
+                self.delta_prev[c] = self.old_delta_prev[found]
+                self.fhys_prev[c] = self.old_fhys_prev[found]
+                self.stress_work[c] = self.old_stress_work[found]
+            else:
+                self.spring[c] = ti.Vector([0.0, 0.0, 0.0])
+                self.delta_max[c] = 0.0
+                self.delta_prev[c] = 0.0
+                self.fhys_prev[c] = 0.0
+                self.stress_work[c] = 0.0
+            self.normal_force[c] = 0.0
+
+    @ti.kernel
+    def reset_displacements(self, pool: ti.template()):
+        """Zero the displacement-since-rebuild of every particle."""
+        for i in range(pool.n_slots[None]):
+            pool.displacement[i] = ti.Vector([0.0, 0.0, 0.0])
+
+
+def brute_force_pairs(position: np.ndarray, radius: np.ndarray, cell_x: float, cell_y: float,
+                      skin: float) -> set[tuple[int, int]]:
+    """O(N^2) reference: index pairs (i < j) with minimum-image distance < r_i + r_j + skin."""
+    out = set()
+    n = len(radius)
+    for i in range(n):
+        d = position[i + 1:] - position[i]
+        d[:, 0] -= cell_x * np.round(d[:, 0] / cell_x)
+        d[:, 1] -= cell_y * np.round(d[:, 1] / cell_y)
+        cut = radius[i] + radius[i + 1:] + skin
+        for k in np.nonzero((d**2).sum(1) < cut**2)[0]:
+            out.add((i, i + 1 + int(k)))
+    return out

@@ -1,0 +1,377 @@
+"""Contact model tables and the per-step kernels.
+
+One step is two parallel loops (the CPU backend pays ~60 us per parallel loop, so they are
+fused as far as the physics allows):
+
+1. :meth:`Kernels.advance` over particles: kick with the previous forces (leapfrog form of
+   velocity Verlet), drift, periodic wrap, guards, then reset the accumulators to gravity
+   and add the particle-plate contacts at the new positions.
+2. :meth:`Kernels.pair_forces` over candidate pairs: the same contact law, accumulated into
+   both particles with atomic adds (bit-reproducible on one thread, not across threads).
+
+Velocities held between steps are half-step velocities v_{n-1/2}; observables use the
+synchronised v_n = v_{n-1/2} + dt/2 a_n.
+"""
+
+
+import taichi as ti
+
+from calendaring.config import SimConfig
+from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
+from calendaring.laws.eepa import (
+    ADHESION_DIRECT,
+    ADHESION_JKR_R,
+    ADHESION_SURFACE_ENERGY_AP,
+    DAMPING_LITERAL_K1,
+    DAMPING_TANGENT_SQRT56,
+    eepa_adhesion_stiffness,
+    eepa_damping_coefficient,
+    eepa_hysteretic_force,
+    eepa_loading_stiffness,
+    eepa_plastic_overlap,
+    eepa_potential,
+)
+from calendaring.laws.rolling import rolling_torque
+from calendaring.laws.tangential import coulomb_limit, rotate_spring, tangential_stiffness
+
+# Energy ledger slots (accumulated every step when numerics.track_energy is on) [J].
+LEDGER = ("damping_normal", "damping_tangential", "friction", "rolling", "hysteretic_work",
+          "plate_work")
+L_DAMP_N, L_DAMP_T, L_FRICTION, L_ROLLING, L_HYST, L_PLATE = range(len(LEDGER))
+
+# Guard codes (first failure wins; the host turns them into SimulationError).
+GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN = 1, 2, 3, 4, 5
+GUARD_NAMES = {GUARD_NAN: "non-finite position or velocity",
+               GUARD_OVERLAP: "overlap above numerics.max_overlap_fraction of the smaller radius",
+               GUARD_BOTTOM: "particle centre below the bottom plate (left the cell)",
+               GUARD_TOP: "particle centre above the top plate (left the cell)",
+               GUARD_SKIN: "particle moved more than skin/2 between neighbour-list checks"}
+
+_ADHESION = {"surface_energy_ap": ADHESION_SURFACE_ENERGY_AP, "jkr_R": ADHESION_JKR_R,
+             "direct_kadh": ADHESION_DIRECT}
+_DAMPING = {"tangent_sqrt56": DAMPING_TANGENT_SQRT56, "literal_k1": DAMPING_LITERAL_K1}
+
+
+@ti.data_oriented
+class Kernels:
+    """Contact constants (small fields) plus the step kernels, specialised on static switches.
+
+    Args:
+        cfg: simulation configuration (materials, contact laws, numerics).
+    """
+
+    def __init__(self, cfg: SimConfig) -> None:
+        c = cfg.contact
+        self.n = float(c.loading_exponent)
+        self.chi = float(c.adhesive_exponent)
+        self.xi_t = float(c.tangential_stiffness_ratio)
+        self.adhesion_mode = _ADHESION[c.adhesion_mode]
+        self.damping_mode = _DAMPING[c.damping_mode]
+        self.track_energy = bool(cfg.numerics.track_energy)
+        self.n_mat = len(cfg.materials)
+        ncol = len(COLUMNS)
+        fb = ti.FieldsBuilder()
+        self.pair = ti.field(ti.f64)
+        self.plate = ti.field(ti.f64)
+        fb.dense(ti.ijk, (self.n_mat, self.n_mat, ncol)).place(self.pair)
+        fb.dense(ti.ijk, (self.n_mat, 2, ncol)).place(self.plate)
+        self.ledger = ti.field(ti.f64)
+        fb.dense(ti.i, len(LEDGER)).place(self.ledger)
+        self.plate_force = ti.Vector.field(3, ti.f64)  # force ON plate w (0 bottom, 1 top) [N]
+        fb.dense(ti.i, 2).place(self.plate_force)
+        self.guard_count = ti.field(ti.i32)
+        self.guard_code = ti.field(ti.i32)
+        self.guard_slot = ti.field(ti.i32)
+        self.guard_step = ti.field(ti.i32)
+        self.guard_value = ti.field(ti.f64)
+        self.need_rebuild = ti.field(ti.i32)
+        fb.place(self.guard_count, self.guard_code, self.guard_slot, self.guard_step,
+                 self.guard_value, self.need_rebuild)
+        self._tree = fb.finalize()
+        self.pair.from_numpy(pair_table(cfg))
+        self.plate.from_numpy(plate_table(cfg))
+
+    def destroy(self) -> None:
+        """Free the device memory."""
+        if self._tree is not None:
+            self._tree.destroy()
+            self._tree = None
+
+    # ------------------------------------------------------------------ helpers
+    @ti.func
+    def _flag(self, code, slot, step, value):
+        if ti.atomic_add(self.guard_count[None], 1) == 0:
+            self.guard_code[None] = code
+            self.guard_slot[None] = slot
+            self.guard_step[None] = step
+            self.guard_value[None] = value
+
+    @ti.func
+    def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, dt,
+             delta_max, spring, fhys_prev):
+        """Contact force of one contact (spec 2-3), shared by particle pairs and plates.
+
+        Returns the force on body i, the tangential force, f_hys, the updated history, the
+        normal force magnitude and the energy increments (damping n/t, friction, hysteresis).
+        """
+        n = ti.static(self.n)
+        chi = ti.static(self.chi)
+        e_star = tab[a, b, COL["e_star"]]
+        lam = tab[a, b, COL["plasticity_ratio"]]
+        f0 = tab[a, b, COL["pull_off_force"]]
+        beta_hat = tab[a, b, COL["beta_hat"]]
+        k1 = eepa_loading_stiffness(e_star, r_star, n)
+        k2 = k1 / (1.0 - lam)
+        dmax = ti.max(delta_max, delta)
+        delta_p = eepa_plastic_overlap(dmax, lam, n)
+        k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
+                                        tab[a, b, COL["adhesion_stiffness"]], n, chi,
+                                        ti.static(self.adhesion_mode))
+        f_hys = eepa_hysteretic_force(delta, delta_p, k1, k2, k_adh, f0, n, chi)
+        delta_dot = v_rel.dot(nrm)
+        beta_n = eepa_damping_coefficient(m_star, k1, delta, beta_hat, n,
+                                          ti.static(self.damping_mode))
+        f_nd = beta_n * delta_dot
+        f_n = f_hys + f_nd
+        v_t = v_rel - delta_dot * nrm
+        k_t = tangential_stiffness(tab[a, b, COL["g_star"]], r_star, delta, k1,
+                                   ti.static(self.xi_t), n)
+        s = rotate_spring(spring, nrm) - k_t * v_t * dt
+        beta_t = 2.0 * beta_hat * ti.sqrt(m_star * k_t)
+        f_t = s - beta_t * v_t
+        limit = coulomb_limit(tab[a, b, COL["friction"]], f_hys, k_adh, delta, f0, chi)
+        friction_loss = 0.0
+        damp_t = beta_t * v_t.norm_sqr() * dt
+        ft_mag = f_t.norm()
+        if ft_mag > limit:
+            t_hat = f_t / ft_mag if ft_mag > 0.0 else ti.Vector([0.0, 0.0, 0.0])
+            s_new = limit * t_hat
+            if k_t > 0.0:
+                friction_loss = (s.norm_sqr() - s_new.norm_sqr()) / (2.0 * k_t)
+            s = s_new
+            f_t = s
+            damp_t = 0.0
+        force_i = -f_n * nrm + f_t
+        hyst = 0.5 * (fhys_prev + f_hys) * (delta - delta_prev)
+        return (force_i, f_t, f_hys, dmax, s, ti.abs(f_n), f_nd * delta_dot * dt, damp_t,
+                friction_loss, hyst)
+
+    # ------------------------------------------------------------------ step kernels
+    @ti.kernel
+    def advance(self, pool: ti.template(), kick: ti.f64, drift: ti.f64, dt: ti.f64,
+                gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64, v_top: ti.f64,
+                lx: ti.f64, ly: ti.f64, half_skin: ti.f64, step: ti.i32):
+        """Kick, drift, guards, reset to gravity, particle-plate contacts."""
+        self.plate_force[0] = ti.Vector([0.0, 0.0, 0.0])
+        self.plate_force[1] = ti.Vector([0.0, 0.0, 0.0])
+        for i in range(pool.n_slots[None]):
+            if pool.alive[i]:
+                self._advance_one(pool, i, kick, drift, dt, gravity, z_bottom, z_top, v_top,
+                                  lx, ly, half_skin, step)
+
+    @ti.func
+    def _advance_one(self, pool: ti.template(), i, kick, drift, dt, gravity, z_bottom, z_top,
+                     v_top, lx, ly, half_skin, step):
+        inv_m = pool.inv_mass[i]
+        inv_i = pool.inv_inertia[i]
+        w = pool.angular_velocity[i]
+        tau_roll = rolling_torque(pool.roll_magnitude[i], w, inv_i, dt)
+        v = pool.velocity[i] + kick * dt * inv_m * pool.force[i]
+        w_new = w + kick * dt * inv_i * (pool.torque[i] + tau_roll)
+        if ti.static(self.track_energy):
+            ti.atomic_add(self.ledger[L_ROLLING], -kick * dt * tau_roll.dot(0.5 * (w + w_new)))
+        dx = drift * dt * v
+        x = pool.position[i] + dx
+        x[0] -= lx * ti.floor(x[0] / lx)
+        x[1] -= ly * ti.floor(x[1] / ly)
+        pool.velocity[i] = v
+        pool.angular_velocity[i] = w_new
+        pool.position[i] = x
+        disp = pool.displacement[i] + dx
+        pool.displacement[i] = disp
+        r = pool.radius[i]
+        if not (ti.math.isinf(x).any() or ti.math.isnan(x).any() or ti.math.isnan(v).any()):
+            d2 = disp.norm_sqr()
+            if d2 > 0.25 * half_skin * half_skin:
+                self.need_rebuild[None] = 1
+                if d2 > half_skin * half_skin:
+                    self._flag(GUARD_SKIN, i, step, ti.sqrt(d2))
+            if x[2] < z_bottom:
+                self._flag(GUARD_BOTTOM, i, step, x[2])
+            if x[2] > z_top:
+                self._flag(GUARD_TOP, i, step, x[2])
+        else:
+            self._flag(GUARD_NAN, i, step, x[2])
+        m = pool.mass[i]
+        pool.force[i] = ti.Vector([0.0, 0.0, -gravity * m])
+        pool.torque[i] = ti.Vector([0.0, 0.0, 0.0])
+        pool.roll_magnitude[i] = 0.0
+        pool.normal_force_sum[i] = 0.0
+        pool.n_contacts[i] = 0
+        self._plate_contact(pool, i, 0, pool.wall_delta_max_bottom, pool.wall_delta_prev_bottom,
+                            pool.wall_fhys_prev_bottom, pool.wall_spring_bottom,
+                            r - (x[2] - z_bottom), 0.0, dt)
+        self._plate_contact(pool, i, 1, pool.wall_delta_max_top, pool.wall_delta_prev_top,
+                            pool.wall_fhys_prev_top, pool.wall_spring_top,
+                            r - (z_top - x[2]), v_top, dt)
+
+    @ti.func
+    def _plate_contact(self, pool: ti.template(), i, w: ti.template(), dmax_f: ti.template(),
+                       prev_f: ti.template(), fprev_f: ti.template(), spring_f: ti.template(),
+                       delta, v_plate, dt):
+        """Particle i against plate w (0 = bottom, normal from particle -z; 1 = top, +z)."""
+        if delta > 0.0:
+            nrm = ti.Vector([0.0, 0.0, 2.0 * w - 1.0])
+            r = pool.radius[i]
+            arm = r - 0.5 * delta
+            v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm * nrm)
+                     - ti.Vector([0.0, 0.0, v_plate]))
+            a = pool.material[i]
+            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst) = self._law(
+                self.plate, a, w, delta, prev_f[i], nrm, v_rel, pool.mass[i], r, dt,
+                dmax_f[i], spring_f[i], fprev_f[i])
+            dmax_f[i] = dmax
+            spring_f[i] = s
+            prev_f[i] = delta
+            fprev_f[i] = f_hys
+            pool.force[i] += force
+            pool.torque[i] += (arm * nrm).cross(f_t)
+            pool.roll_magnitude[i] += self.plate[a, w, COL["rolling_friction"]] * ti.abs(
+                f_hys) * arm
+            pool.normal_force_sum[i] += fn_abs
+            pool.n_contacts[i] += 1
+            self.plate_force[w] -= force
+            if ti.static(self.track_energy):
+                ti.atomic_add(self.ledger[L_DAMP_N], d_n)
+                ti.atomic_add(self.ledger[L_DAMP_T], d_t)
+                ti.atomic_add(self.ledger[L_FRICTION], fric)
+                ti.atomic_add(self.ledger[L_HYST], hyst)
+                ti.atomic_add(self.ledger[L_PLATE], force[2] * v_plate * dt)
+        elif dmax_f[i] > 0.0 or prev_f[i] != 0.0:
+            dmax_f[i] = 0.0
+            spring_f[i] = ti.Vector([0.0, 0.0, 0.0])
+            if ti.static(self.track_energy):
+                ti.atomic_add(self.ledger[L_HYST], -0.5 * fprev_f[i] * prev_f[i])
+            prev_f[i] = 0.0
+            fprev_f[i] = 0.0
+
+    @ti.kernel
+    def pair_forces(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+                    dt: ti.f64, max_overlap_fraction: ti.f64, step: ti.i32):
+        """Particle-particle contacts over the candidate pairs."""
+        for c in range(table.n_pairs[None]):
+            i = table.owner[c]
+            j = table.partner[c]
+            if pool.alive[i] and pool.alive[j]:
+                self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
+
+    @ti.func
+    def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,
+                  dt, max_overlap_fraction, step):
+        d = grid.minimum_image(pool.position[j] - pool.position[i])
+        dist = d.norm()
+        ri = pool.radius[i]
+        rj = pool.radius[j]
+        delta = ri + rj - dist
+        if delta > 0.0 and dist > 0.0:
+            nrm = d / dist
+            arm_i = ri - 0.5 * delta
+            arm_j = rj - 0.5 * delta
+            v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i * nrm)
+                     - pool.velocity[j] - pool.angular_velocity[j].cross(-arm_j * nrm))
+            mi = pool.mass[i]
+            mj = pool.mass[j]
+            a = pool.material[i]
+            b = pool.material[j]
+            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst) = self._law(
+                self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
+                ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c])
+            f_pos = ti.max(f_hys, 0.0)
+            table.stress_work[c] += 0.5 * (ti.max(table.fhys_prev[c], 0.0) + f_pos) * (
+                delta - table.delta_prev[c])
+            table.delta_max[c] = dmax
+            table.spring[c] = s
+            table.delta_prev[c] = delta
+            table.fhys_prev[c] = f_hys
+            table.normal_force[c] = fn_abs
+            pool.force[i] += force
+            pool.force[j] -= force
+            pool.torque[i] += (arm_i * nrm).cross(f_t)
+            pool.torque[j] += (arm_j * nrm).cross(f_t)
+            mu_r = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
+            pool.roll_magnitude[i] += mu_r * arm_i
+            pool.roll_magnitude[j] += mu_r * arm_j
+            pool.normal_force_sum[i] += fn_abs
+            pool.normal_force_sum[j] += fn_abs
+            pool.n_contacts[i] += 1
+            pool.n_contacts[j] += 1
+            if delta > max_overlap_fraction * ti.min(ri, rj):
+                self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
+            if ti.static(self.track_energy):
+                ti.atomic_add(self.ledger[L_DAMP_N], d_n)
+                ti.atomic_add(self.ledger[L_DAMP_T], d_t)
+                ti.atomic_add(self.ledger[L_FRICTION], fric)
+                ti.atomic_add(self.ledger[L_HYST], hyst)
+        elif table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0:
+            if ti.static(self.track_energy):  # last trapezoid down to separation
+                ti.atomic_add(self.ledger[L_HYST], -0.5 * table.fhys_prev[c] *
+                              table.delta_prev[c])
+            table.delta_max[c] = 0.0
+            table.delta_prev[c] = 0.0
+            table.fhys_prev[c] = 0.0
+            table.spring[c] = ti.Vector([0.0, 0.0, 0.0])
+            table.normal_force[c] = 0.0
+
+    # ------------------------------------------------------------------ observables
+    @ti.kernel
+    def energies(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+                 dt: ti.f64, gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64) -> ti.types.vector(
+            4, ti.f64):
+        """(kinetic translational, kinetic rotational, gravity potential, elastic) [J]."""
+        ek = 0.0
+        er = 0.0
+        eg = 0.0
+        ee = 0.0
+        for i in range(pool.n_slots[None]):
+            if pool.alive[i]:
+                m = pool.mass[i]
+                v = pool.velocity[i] + 0.5 * dt * pool.inv_mass[i] * pool.force[i]
+                w = pool.angular_velocity[i] + 0.5 * dt * pool.inv_inertia[i] * pool.torque[i]
+                ek += 0.5 * m * v.norm_sqr()
+                er += 0.5 * w.norm_sqr() / pool.inv_inertia[i]
+                eg += m * gravity * pool.position[i][2]
+                r = pool.radius[i]
+                z = pool.position[i][2]
+                a = pool.material[i]
+                ee += self._stored(self.plate, a, 0, r - (z - z_bottom), r,
+                                   pool.wall_delta_max_bottom[i])
+                ee += self._stored(self.plate, a, 1, r - (z_top - z), r,
+                                   pool.wall_delta_max_top[i])
+        for c in range(table.n_pairs[None]):
+            i = table.owner[c]
+            j = table.partner[c]
+            if pool.alive[i] and pool.alive[j]:
+                d = grid.minimum_image(pool.position[j] - pool.position[i])
+                ri = pool.radius[i]
+                rj = pool.radius[j]
+                ee += self._stored(self.pair, pool.material[i], pool.material[j],
+                                   ri + rj - d.norm(), ri * rj / (ri + rj), table.delta_max[c])
+        return ti.Vector([ek, er, eg, ee])
+
+    @ti.func
+    def _stored(self, tab: ti.template(), a, b, delta, r_star, delta_max):
+        n = ti.static(self.n)
+        chi = ti.static(self.chi)
+        e = 0.0
+        if delta > 0.0:
+            lam = tab[a, b, COL["plasticity_ratio"]]
+            k1 = eepa_loading_stiffness(tab[a, b, COL["e_star"]], r_star, n)
+            k2 = k1 / (1.0 - lam)
+            dmax = ti.max(delta_max, delta)
+            delta_p = eepa_plastic_overlap(dmax, lam, n)
+            k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
+                                            tab[a, b, COL["adhesion_stiffness"]], n, chi,
+                                            ti.static(self.adhesion_mode))
+            e = eepa_potential(delta, delta_p, k2, k_adh, tab[a, b, COL["pull_off_force"]], n,
+                               chi)
+        return e

@@ -1,0 +1,1 @@
+"""inverse: see README.md (work in progress, tracked by its issue)."""

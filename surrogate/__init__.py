@@ -1,0 +1,1 @@
+"""surrogate: see README.md (work in progress, tracked by its issue)."""

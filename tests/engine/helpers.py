@@ -1,0 +1,43 @@
+"""Small builders shared by the engine tests."""
+
+import numpy as np
+
+from calendaring.config import load_config_dict
+from calendaring.simulation import Simulation
+
+
+def frictionless_pair(restitution=0.5, plasticity=0.0, friction=0.0, rolling=0.0,
+                      exponent=1.5, fraction=0.01, gravity=0.0, **numerics):
+    """Config where every pair and particle-plate contact has the given parameters."""
+    pair = {"plasticity_ratio": plasticity, "surface_energy": 0.0, "restitution": restitution,
+            "friction": friction, "rolling_friction": rolling}
+    return load_config_dict({
+        "domain": {"gravity": gravity, "cell_x": 60e-6, "cell_y": 60e-6, "height": 60e-6},
+        "contact": {"loading_exponent": exponent,
+                    "pairs": {"AM-AM": pair, "AM-CB": pair, "CB-CB": pair},
+                    "plate_pairs": {"AM": pair, "CB": pair}},
+        "numerics": {"timestep_fraction": fraction, **numerics},
+    })
+
+
+def random_gas(sim: Simulation, n, r_lo, r_hi, seed, z_lo, z_hi, speed=0.0):
+    """Non-overlapping random spheres in the periodic cell between z_lo and z_hi."""
+    rng = np.random.default_rng(seed)
+    lx, ly = sim.cfg.domain.cell_x, sim.cfg.domain.cell_y
+    pos, rad = [], []
+    tries = 0
+    while len(pos) < n and tries < 200000:
+        tries += 1
+        r = rng.uniform(r_lo, r_hi)
+        p = np.array([rng.uniform(0, lx), rng.uniform(0, ly), rng.uniform(z_lo + r, z_hi - r)])
+        if pos:
+            d = np.array(pos) - p
+            d[:, 0] -= lx * np.round(d[:, 0] / lx)
+            d[:, 1] -= ly * np.round(d[:, 1] / ly)
+            if np.any(np.sqrt((d**2).sum(1)) < np.array(rad) + r):
+                continue
+        pos.append(p)
+        rad.append(r)
+    pos, rad = np.array(pos), np.array(rad)
+    vel = rng.normal(size=(len(rad), 3)) * speed
+    return pos, rad, vel
