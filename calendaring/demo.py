@@ -140,7 +140,8 @@ def prepare_dense_bed(cfg: SimConfig, n_am: int, n_cb: int, porosity: float, see
     rng = np.random.default_rng(seed)
     diam, _ = sample_diameters(rng, n_am, n_cb)
     solid_height = (np.pi / 6) * np.sum(diam**3) / (cfg.domain.cell_x * cfg.domain.cell_y)
-    z_dense = solid_height / (1.0 - porosity)
+    # a bed thinner than its largest sphere would be crushed between the plates
+    z_dense = max(solid_height / (1.0 - porosity), 1.5 * float(diam.max()))
     z_insert = max(3.0 * z_dense, 2.5 * float(diam.max()))
     pos, rad, mat = random_bed(cfg, n_am, n_cb, z_insert, seed)
     prep_cfg = with_overrides(cfg, {"numerics.timestep_fraction": 0.2,
