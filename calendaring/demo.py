@@ -37,15 +37,28 @@ def sample_diameters(rng: np.random.Generator, n_am: int, n_cb: int) -> tuple[np
     return diam, mat
 
 
-def random_bed(cfg: SimConfig, n_am: int, n_cb: int, z_max: float, seed: int = 0,
-               max_tries: int = 200) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _overlaps(cells, pos, diam, p, r, c, nx, ny, lx, ly) -> bool:
+    """True if a sphere (centre p, radius r, cell c) overlaps one already in ``cells``."""
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                for j in cells.get(((c[0] + dx) % nx, (c[1] + dy) % ny, c[2] + dz), ()):
+                    v = pos[j] - p
+                    v[0] -= lx * round(v[0] / lx)
+                    v[1] -= ly * round(v[1] / ly)
+                    if v @ v < (r + 0.5 * diam[j]) ** 2:
+                        return True
+    return False
+
+
+def random_bed(cfg: SimConfig, diam: np.ndarray, mat: np.ndarray, z_max: float,
+               rng: np.random.Generator, max_tries: int = 200
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Random sequential insertion of non-overlapping spheres in [0, L]^2 x [0, z_max].
 
     Largest spheres first, periodic in x and y, checked against a hashed cell grid.
-    Returns (positions [m], radii [m], material indices).
+    Returns (positions [m], radii [m], material indices), largest first.
     """
-    rng = np.random.default_rng(seed)
-    diam, mat = sample_diameters(rng, n_am, n_cb)
     order = np.argsort(-diam, kind="stable")
     diam, mat = diam[order], mat[order]
     lx, ly = cfg.domain.cell_x, cfg.domain.cell_y
@@ -58,24 +71,7 @@ def random_bed(cfg: SimConfig, n_am: int, n_cb: int, z_max: float, seed: int = 0
         for _ in range(max_tries):
             p = np.array([rng.uniform(0, lx), rng.uniform(0, ly), rng.uniform(r, z_max - r)])
             c = (int(p[0] / lx * nx) % nx, int(p[1] / ly * ny) % ny, int(p[2] // h))
-            ok = True
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for dz in (-1, 0, 1):
-                        for j in cells.get(((c[0] + dx) % nx, (c[1] + dy) % ny, c[2] + dz), ()):
-                            v = pos[j] - p
-                            v[0] -= lx * round(v[0] / lx)
-                            v[1] -= ly * round(v[1] / ly)
-                            if v @ v < (r + 0.5 * diam[j]) ** 2:
-                                ok = False
-                                break
-                        if not ok:
-                            break
-                    if not ok:
-                        break
-                if not ok:
-                    break
-            if ok:
+            if not _overlaps(cells, pos, diam, p, r, c, nx, ny, lx, ly):
                 pos[k] = p
                 cells.setdefault(c, []).append(k)
                 break
@@ -88,8 +84,6 @@ def random_bed(cfg: SimConfig, n_am: int, n_cb: int, z_max: float, seed: int = 0
 
 def compress(sim, z_end: float, speed: float, n_records: int = 200, progress=None) -> dict:
     """Move the top plate down to ``z_end`` at ``speed`` [m/s]; record pressure vs travel."""
-    from calendaring.simulation import Simulation  # noqa: F401  (type only)
-
     if not sim._primed:
         sim.prime()
     z0 = sim.z_top
@@ -138,12 +132,12 @@ def prepare_dense_bed(cfg: SimConfig, n_am: int, n_cb: int, porosity: float, see
     from calendaring.simulation import Simulation
 
     rng = np.random.default_rng(seed)
-    diam, _ = sample_diameters(rng, n_am, n_cb)
+    diam, mat = sample_diameters(rng, n_am, n_cb)
     solid_height = (np.pi / 6) * np.sum(diam**3) / (cfg.domain.cell_x * cfg.domain.cell_y)
     # a bed thinner than its largest sphere would be crushed between the plates
     z_dense = max(solid_height / (1.0 - porosity), 1.5 * float(diam.max()))
     z_insert = max(3.0 * z_dense, 2.5 * float(diam.max()))
-    pos, rad, mat = random_bed(cfg, n_am, n_cb, z_insert, seed)
+    pos, rad, mat = random_bed(cfg, diam, mat, z_insert, rng)
     prep_cfg = with_overrides(cfg, {"numerics.timestep_fraction": 0.2,
                                     "numerics.rebuild_check_interval": 1})
     sim = Simulation(prep_cfg, capacity=len(rad))
