@@ -23,6 +23,42 @@ from pathlib import Path
 import numpy as np
 
 
+def prepare_dense_bed(cfg, n_am: int, n_cb: int, porosity: float, seed: int = 0,
+                      prep_speed: float = 5.0):
+    """Random loose bed pre-compacted to ``porosity`` with a coarse (20 %) step (untimed).
+
+    Returns (positions, radii, materials, velocities, plate height).
+    """
+    from calendaring.config import with_overrides
+    from calendaring.electrode import random_insertion, sample_diameters
+    from calendaring.simulation import Simulation
+
+    rng = np.random.default_rng(seed)
+    sizes = cfg.electrode.sizes
+    diam = np.concatenate([sample_diameters(sizes["AM"], rng, n_am),
+                           sample_diameters(sizes["CB"], rng, n_cb)])
+    mat = np.concatenate([np.zeros(n_am, np.int32), np.ones(n_cb, np.int32)])
+    area = cfg.domain.cell_x * cfg.domain.cell_y
+    z_dense = max((np.pi / 6) * np.sum(diam**3) / area / (1.0 - porosity), 1.5 * diam.max())
+    z_insert = max(3.0 * z_dense, 2.5 * float(diam.max()))
+    pos, rad, mat = random_insertion(diam, mat, cfg.domain.cell_x, cfg.domain.cell_y,
+                                     z_insert, rng)
+    prep = with_overrides(cfg, {"numerics.timestep_fraction": 0.2,
+                                "numerics.rebuild_check_interval": 1})
+    sim = Simulation(prep, capacity=len(rad))
+    try:
+        sim.add_particles(pos, rad, mat)
+        sim.prime()
+        z0 = z_insert + 0.5e-6
+        n = int(np.ceil((z0 - z_dense) / (prep_speed * sim.dt)))
+        sim.set_top_plate_history([0.0, n * sim.dt], [z0, z_dense])
+        sim.run(n)
+        s = sim.state()
+        return s["position"], s["radius"], s["material"], s["velocity"], sim.z_top
+    finally:
+        sim.destroy()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-am", type=int, default=1440)
@@ -39,7 +75,6 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from calendaring.config import SimConfig, with_overrides
-    from calendaring.demo import prepare_dense_bed
     from calendaring.simulation import Simulation
 
     over = {"domain.cell_x": args.cell, "domain.cell_y": args.cell,

@@ -206,9 +206,187 @@ class NumericsConfig:
         k = self.rebuild_check_interval
         _check("rebuild_check_interval", k, 1 <= k <= 1000, "in [1, 1000]")
         o = self.max_overlap_fraction
-        _check("max_overlap_fraction", o, 0.0 < o <= 1.0, "in (0, 1]")
+        _check("max_overlap_fraction", o, 0.0 < o <= 2.0, "in (0, 2]")
         p = self.pairs_per_particle
         _check("pairs_per_particle", p, 1 <= p <= 1000, "in [1, 1000]")
+
+
+SIZE_DISTRIBUTIONS = ("constant", "normal", "lognormal", "table")
+TABLE_BASES = ("number", "volume")
+BOND_CRITERIA = ("tension", "abs")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SizeConfig:
+    """Sphere-diameter distribution of one material. SI units.
+
+    ``normal`` and ``lognormal`` take the mean and standard deviation of the diameter and are
+    truncated to [``min``, ``max``] by resampling; ``table`` reads a CSV file with columns
+    ``diameter_m,fraction`` (fractions by number or by volume, ``table_basis``).
+    """
+
+    distribution: str = "constant"  # constant | normal | lognormal | table
+    mean: float = 3.0e-6  # mean diameter [m] (the diameter of a constant distribution)
+    std: float = 0.0  # standard deviation of the diameter [m]
+    min: float = 0.0  # smallest diameter kept [m] (0 = mean - 4 std, at least mean/10)
+    max: float = 0.0  # largest diameter kept [m] (0 = mean + 4 std)
+    table: str = ""  # CSV file for distribution = "table"
+    table_basis: str = "number"  # the table's fractions: by number or by volume
+
+    def __post_init__(self) -> None:
+        _check("distribution", self.distribution, self.distribution in SIZE_DISTRIBUTIONS,
+               f"one of {SIZE_DISTRIBUTIONS}")
+        _check("mean", self.mean, self.mean > 0, "> 0 m")
+        _check("std", self.std, self.std >= 0, ">= 0 m")
+        _check("min", self.min, 0 <= self.min <= self.mean or self.distribution == "table",
+               f"in [0, mean = {self.mean}] m")
+        _check("max", self.max, self.max == 0 or self.max >= self.mean
+               or self.distribution == "table", f"0 (automatic) or >= mean = {self.mean} m")
+        if self.distribution in ("normal", "lognormal"):
+            _check("std", self.std, self.std > 0, f"> 0 m for a {self.distribution} distribution")
+        if self.distribution == "table":
+            _check("table", self.table, bool(self.table), "a CSV path (diameter_m,fraction)")
+        _check("table_basis", self.table_basis, self.table_basis in TABLE_BASES,
+               f"one of {TABLE_BASES}")
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """(smallest, largest) diameter that can be drawn [m] (table: from the file)."""
+        if self.distribution == "constant":
+            return self.mean, self.mean
+        lo = self.min if self.min > 0 else max(self.mean - 4 * self.std, 0.1 * self.mean)
+        hi = self.max if self.max > 0 else self.mean + 4 * self.std
+        return lo, hi
+
+
+def _paper_sizes() -> dict[str, SizeConfig]:
+    # Paper section 2.1: AM ~ N(7.74, 1.35) um observed in [4.94, 10.69] um; CB 3 um.
+    return {
+        "AM": SizeConfig(distribution="normal", mean=7.74e-6, std=1.35e-6, min=4.94e-6,
+                         max=10.69e-6),
+        "CB": SizeConfig(distribution="constant", mean=3.0e-6),
+    }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ElectrodeConfig:
+    """The coating to build (paper section 2.1): composition by mass sets the particle counts."""
+
+    thickness: float = 75e-6  # coating thickness before calendering, h0 [m]
+    coating_density: float = 2560.0  # coating (bulk) density at h0 [kg m^-3]
+    composition: dict[str, float] = field(
+        default_factory=lambda: {"AM": 0.94, "CB": 0.06})  # mass fractions, sum 1
+    sizes: dict[str, SizeConfig] = field(default_factory=_paper_sizes)
+    packing: str = ""  # start from this packing (CSV or LAMMPS data) instead of building
+
+    def __post_init__(self) -> None:
+        _check("thickness", self.thickness, self.thickness > 0, "> 0 m")
+        _check("coating_density", self.coating_density, self.coating_density > 0, "> 0 kg/m^3")
+        for k, w in self.composition.items():
+            _check(f"composition.{k}", w, 0.0 <= w <= 1.0, "a mass fraction in [0, 1]")
+        total = sum(self.composition.values())
+        _check("composition", dict(self.composition), abs(total - 1.0) <= 1e-6,
+               f"mass fractions summing to 1 (100 %), got {total:.6g}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BuildConfig:
+    """How the loose bed is made before calendering ([A]; recorded in every run file).
+
+    Real gravity would need milliseconds of settling (1e7 steps), so the settling stage uses
+    an amplified body force and an initial downward velocity, at a coarser time step; the bed
+    is then pre-compacted by the top plate to the coating thickness and relaxed.
+    """
+
+    settle_acceleration: float = 1.0e5  # body force during settling [m s^-2] (replaces g)
+    settle_velocity: float = 1.0  # initial downward velocity of every particle [m s^-1]
+    settle_time_factor: float = 1.5  # settling time / free-fall time over the domain [-]
+    plate_speed: float = 2.0  # pre-compaction speed of the top plate [m s^-1]
+    relax_time: float = 5.0e-6  # plate held at h0, real gravity [s]
+    timestep_fraction: float = 0.2  # dt / Rayleigh time during the build stages [-]
+    max_insert_tries: int = 500  # random-insertion attempts per sphere
+
+    def __post_init__(self) -> None:
+        _check("settle_acceleration", self.settle_acceleration, self.settle_acceleration >= 0,
+               ">= 0 m/s^2")
+        _check("settle_velocity", self.settle_velocity, self.settle_velocity >= 0, ">= 0 m/s")
+        _check("settle_time_factor", self.settle_time_factor, 0 < self.settle_time_factor <= 20,
+               "in (0, 20]")
+        _check("plate_speed", self.plate_speed, self.plate_speed > 0, "> 0 m/s")
+        _check("relax_time", self.relax_time, self.relax_time >= 0, ">= 0 s")
+        f = self.timestep_fraction
+        _check("timestep_fraction", f, 0.0 < f <= 0.3, "in (0, 0.3]")
+        _check("max_insert_tries", self.max_insert_tries, self.max_insert_tries >= 1, ">= 1")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BondsConfig:
+    """Carbon-black virtual bonds (Potyondy-Cundall parallel bonds, spec section 4)."""
+
+    enabled: bool = True
+    materials: list[str] = field(default_factory=lambda: ["CB"])  # a bond needs one of these
+    radius_ratio: float = 1.5  # xi_b: bond if |x_A - x_B| <= xi_b (R_A + R_B) [-]
+    disk_scale: float = 1.0  # lambda_b: R_b = lambda_b min(R_A, R_B) [-] ([A] 1)
+    normal_stiffness: float = 3.5e13  # S_n [N m^-3]
+    shear_stiffness: float = 3.5e13  # S_t [N m^-3] ([A] = S_n)
+    normal_strength: float = 5.0e7  # sigma_c [Pa]
+    shear_strength: float = 5.0e7  # tau_c [Pa] ([A] = sigma_c)
+    normal_criterion: str = "tension"  # tension (P&C, EDEM) or abs (paper Eq. 28 literal)
+
+    def __post_init__(self) -> None:
+        _check("radius_ratio", self.radius_ratio, 1.0 <= self.radius_ratio <= 3.0, "in [1, 3]")
+        _check("disk_scale", self.disk_scale, 0.0 < self.disk_scale <= 1.0, "in (0, 1]")
+        for key in ("normal_stiffness", "shear_stiffness", "normal_strength", "shear_strength"):
+            v = getattr(self, key)
+            _check(key, v, v > 0, "> 0")
+        _check("normal_criterion", self.normal_criterion,
+               self.normal_criterion in BOND_CRITERIA, f"one of {BOND_CRITERIA}")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ProtocolConfig:
+    """Calendering stroke, plate speed, optional pressure target and unloading."""
+
+    stroke: float = 19.5e-6  # top-plate travel from h0 [m] (the maximum travel if servo)
+    plate_speed: float = 0.0  # [m s^-1]; 0 = from inertial_number at reference_pressure
+    inertial_number: float = 1.0e-3  # target I = (v/h) d_mean sqrt(rho / P_ref) [-]
+    reference_pressure: float = 1.0e6  # P_ref of the plate-speed rule [Pa]
+    target_pressure: float = 0.0  # > 0: stop the stroke when the top pressure reaches it [Pa]
+    unload: bool = False  # after the stroke, lift the plate until it loses contact
+    unload_speed: float = 0.0  # [m s^-1]; 0 = the loading speed
+    snapshot_depths: list[float] = field(
+        default_factory=lambda: [0.0, 5e-6, 10e-6, 15e-6, 19.5e-6])  # [m]
+
+    def __post_init__(self) -> None:
+        _check("stroke", self.stroke, self.stroke > 0, "> 0 m")
+        _check("plate_speed", self.plate_speed, self.plate_speed >= 0, ">= 0 m/s (0 = auto)")
+        _check("inertial_number", self.inertial_number, 0 < self.inertial_number <= 1,
+               "in (0, 1]")
+        _check("reference_pressure", self.reference_pressure, self.reference_pressure > 0,
+               "> 0 Pa")
+        _check("target_pressure", self.target_pressure, self.target_pressure >= 0,
+               ">= 0 Pa (0 = calender to the stroke)")
+        _check("unload_speed", self.unload_speed, self.unload_speed >= 0, ">= 0 m/s")
+        for d in self.snapshot_depths:
+            _check("snapshot_depths", list(self.snapshot_depths), 0 <= d <= self.stroke,
+                   f"depths in [0, stroke = {self.stroke}] m")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class OutputConfig:
+    """What a run records, and how often it checkpoints."""
+
+    record_spacing: float = 0.05e-6  # plate travel between rows of the series/ group [m]
+    pressure_stride: int = 1  # steps per pressure/ sample (1 = every step; > 1 = block mean)
+    checkpoint_interval: float = 600.0  # wall seconds between checkpoints (0 = never)
+    snapshot_bonds: bool = True  # store the bond network in every snapshot
+
+    def __post_init__(self) -> None:
+        _check("record_spacing", self.record_spacing, self.record_spacing > 0, "> 0 m")
+        _check("pressure_stride", self.pressure_stride, 1 <= self.pressure_stride <= 10**6,
+               "in [1, 1e6]")
+        _check("checkpoint_interval", self.checkpoint_interval, self.checkpoint_interval >= 0,
+               ">= 0 s (0 = never)")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -220,6 +398,11 @@ class SimConfig:
     plates: PlatesConfig = field(default_factory=PlatesConfig)
     contact: ContactConfig = field(default_factory=ContactConfig)
     numerics: NumericsConfig = field(default_factory=NumericsConfig)
+    electrode: ElectrodeConfig = field(default_factory=ElectrodeConfig)
+    build: BuildConfig = field(default_factory=BuildConfig)
+    bonds: BondsConfig = field(default_factory=BondsConfig)
+    protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
 
     def __post_init__(self) -> None:
         names = list(self.materials)
@@ -242,6 +425,50 @@ class SimConfig:
         for name in names:
             if name not in self.contact.plate_pairs:
                 raise ConfigError(f"contact.plate_pairs.{name}", None, "an entry per material")
+
+    def check_run(self) -> SimConfig:
+        """Cross-section checks of a calendering run (electrode, protocol, domain, bonds).
+
+        The engine alone does not need them (tests build arbitrary cells); the run builder
+        and the CLI call this before doing anything. Returns ``self``.
+        """
+        names = self.material_names
+        el, pr, d = self.electrode, self.protocol, self.domain
+        for key in el.composition:
+            if key not in names:
+                raise ConfigError(f"electrode.composition.{key}", key, f"one of {names}")
+        for key, w in el.composition.items():
+            if w > 0 and key not in el.sizes:
+                raise ConfigError(f"electrode.sizes.{key}", None,
+                                  "a size distribution for every material in the composition")
+        for key in el.sizes:
+            if key not in names:
+                raise ConfigError(f"electrode.sizes.{key}", key, f"one of {names}")
+        for key in self.bonds.materials:
+            if key not in names:
+                raise ConfigError("bonds.materials", list(self.bonds.materials),
+                                  f"names among {names}")
+        if pr.stroke >= el.thickness:
+            raise ConfigError("protocol.stroke", pr.stroke,
+                              f"< electrode.thickness = {el.thickness} m")
+        if el.thickness >= d.height:
+            raise ConfigError("electrode.thickness", el.thickness,
+                              f"< domain.height = {d.height} m")
+        d_max = max((s.bounds[1] for s in el.sizes.values() if s.distribution != "table"),
+                    default=0.0)
+        if d_max >= el.thickness - pr.stroke:
+            raise ConfigError("protocol.stroke", pr.stroke,
+                              f"a final thickness h0 - stroke above the largest diameter "
+                              f"{d_max} m")
+        d_bond = max((s.bounds[1] for k, s in el.sizes.items()
+                      if k in self.bonds.materials and s.distribution != "table"), default=0.0)
+        reach = max(d_max + self.numerics.skin,
+                    self.bonds.radius_ratio * 0.5 * (d_bond + d_max) if self.bonds.enabled else 0)
+        for key, length in (("domain.cell_x", d.cell_x), ("domain.cell_y", d.cell_y)):
+            if length < 2.0 * reach:
+                raise ConfigError(key, length, f">= {2.0 * reach:.4g} m (twice the longest "
+                                  "contact or bond reach, for the periodic minimum image)")
+        return self
 
     @property
     def material_names(self) -> list[str]:
@@ -280,6 +507,11 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
         if not isinstance(value, dict):
             raise ConfigError(key, value, "a table")
         return {str(k): _convert(vt, v, f"{key}.{k}") for k, v in value.items()}
+    if origin is list:
+        (et,) = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(key, value, "a list")
+        return [_convert(et, v, f"{key}[{i}]") for i, v in enumerate(value)]
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
         if value is None:
@@ -396,3 +628,18 @@ def config_json(cfg: Any) -> str:
 def config_hash(cfg: Any) -> str:
     """sha256 of the canonical JSON: the run ID of a configuration."""
     return hashlib.sha256(config_json(cfg).encode()).hexdigest()
+
+
+PRESETS = ("paper", "quick", "tiny")
+
+
+def preset_path(name: str) -> Path:
+    """Path of a preset TOML shipped inside the package."""
+    if name not in PRESETS:
+        raise ConfigError("--preset", name, f"one of {PRESETS}")
+    return Path(__file__).parent / "presets" / f"{name}.toml"
+
+
+def load_preset(name: str) -> SimConfig:
+    """The preset's configuration (paper defaults plus the preset's TOML)."""
+    return load_config(preset_path(name))

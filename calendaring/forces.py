@@ -39,6 +39,8 @@ LEDGER = ("damping_normal", "damping_tangential", "friction", "rolling", "hyster
           "plate_work")
 L_DAMP_N, L_DAMP_T, L_FRICTION, L_ROLLING, L_HYST, L_PLATE = range(len(LEDGER))
 
+TRACE_LEN = 4096  # steps of plate forces buffered on the device between host reads
+
 # Guard codes (first failure wins; the host turns them into SimulationError).
 GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN = 1, 2, 3, 4, 5
 GUARD_NAMES = {GUARD_NAN: "non-finite position or velocity",
@@ -85,6 +87,8 @@ class Kernels:
         self.guard_step = ti.field(ti.i32)
         self.guard_value = ti.field(ti.f64)
         self.need_rebuild = ti.field(ti.i32)
+        self.trace = ti.field(ti.f64)  # per-step z force ON (bottom, top) plate [N]
+        fb.dense(ti.ij, (TRACE_LEN, 2)).place(self.trace)
         fb.place(self.guard_count, self.guard_code, self.guard_slot, self.guard_step,
                  self.guard_value, self.need_rebuild)
         self._tree = fb.finalize()
@@ -160,14 +164,40 @@ class Kernels:
     @ti.kernel
     def advance(self, pool: ti.template(), kick: ti.f64, drift: ti.f64, dt: ti.f64,
                 gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64, v_top: ti.f64,
-                lx: ti.f64, ly: ti.f64, half_skin: ti.f64, step: ti.i32):
-        """Kick, drift, guards, reset to gravity, particle-plate contacts."""
+                lx: ti.f64, ly: ti.f64, half_skin: ti.f64, step: ti.i32, trace_slot: ti.i32):
+        """Kick, drift, guards, reset to gravity, particle-plate contacts; the plate z forces
+        of this step go to ``trace[trace_slot]``."""
         self.plate_force[0] = ti.Vector([0.0, 0.0, 0.0])
         self.plate_force[1] = ti.Vector([0.0, 0.0, 0.0])
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self._advance_one(pool, i, kick, drift, dt, gravity, z_bottom, z_top, v_top,
                                   lx, ly, half_skin, step)
+        self.trace[trace_slot, 0] = self.plate_force[0][2]
+        self.trace[trace_slot, 1] = self.plate_force[1][2]
+
+    @ti.kernel
+    def synchronise(self, pool: ti.template(), dt: ti.f64):
+        """Half-step velocities -> velocities at the current step (v_n = v_{n-1/2} + dt/2 a_n)."""
+        for i in range(pool.n_slots[None]):
+            if pool.alive[i]:
+                pool.velocity[i] += 0.5 * dt * pool.inv_mass[i] * pool.force[i]
+                pool.angular_velocity[i] += 0.5 * dt * pool.inv_inertia[i] * pool.torque[i]
+
+    @ti.kernel
+    def contact_stats(self, pool: ti.template(), table: ti.template()) -> ti.types.vector(
+            2, ti.f64):
+        """(number of touching particle pairs, largest overlap / smaller radius)."""
+        n = 0.0
+        worst = 0.0
+        for c in range(table.n_pairs[None]):
+            i = table.owner[c]
+            j = table.partner[c]
+            if pool.alive[i] and pool.alive[j] and table.delta_prev[c] > 0.0:
+                n += 1.0
+                ti.atomic_max(worst, table.delta_prev[c] / ti.min(pool.radius[i],
+                                                                  pool.radius[j]))
+        return ti.Vector([n, worst])
 
     @ti.func
     def _advance_one(self, pool: ti.template(), i, kick, drift, dt, gravity, z_bottom, z_top,

@@ -27,7 +27,7 @@ from calendaring.backend import init_taichi
 from calendaring.config import SimConfig
 from calendaring.contacts import ContactTable
 from calendaring.errors import ConfigError, SimulationError
-from calendaring.forces import GUARD_NAMES, GUARD_SKIN, LEDGER, Kernels
+from calendaring.forces import GUARD_NAMES, GUARD_SKIN, LEDGER, TRACE_LEN, Kernels
 from calendaring.neighbours import CellGrid
 from calendaring.state import ParticlePool
 from calendaring.timestep import critical_timestep
@@ -66,6 +66,13 @@ class Simulation:
         self._primed = False
         self._r_max = 0.0
         self.n_rebuilds = 0
+        self.gravity = float(cfg.domain.gravity)  # body force per unit mass along -z [m s^-2]
+        self.bonds = None  # BondTable once create_bonds() ran
+        self.check_interval = cfg.numerics.rebuild_check_interval  # steps between host checks
+        self._trace_n = 0
+        self._trace_z = np.zeros(TRACE_LEN)
+        self._trace_steps = np.zeros(TRACE_LEN, np.int64)
+        self._traced: list[np.ndarray] = []
 
     # ------------------------------------------------------------------ set-up
     def add_particles(self, position, radius, material, velocity=None,
@@ -170,13 +177,16 @@ class Simulation:
     # ------------------------------------------------------------------ stepping
     def _advance(self, kick: float, drift: float) -> None:
         d = self.cfg.domain
-        self.kernels.advance(self.pool, kick, drift, self.dt, d.gravity, self.z_bottom,
+        self.kernels.advance(self.pool, kick, drift, self.dt, self.gravity, self.z_bottom,
                              self.z_top, self.v_top, d.cell_x, d.cell_y,
-                             0.5 * self.cfg.numerics.skin, self.step_count)
+                             0.5 * self.cfg.numerics.skin, self.step_count, self._trace_n)
 
     def _pairs(self, dt: float) -> None:
         self.kernels.pair_forces(self.pool, self.table, self.grid, dt,
                                  self.cfg.numerics.max_overlap_fraction, self.step_count)
+        if self.bonds is not None:
+            d = self.cfg.domain
+            self.bonds.update(self.pool, dt, d.cell_x, d.cell_y, self.step_count)
 
     def prime(self) -> None:
         """Compute dt, build the neighbour list and the forces at the current state."""
@@ -200,7 +210,7 @@ class Simulation:
         """
         if not self._primed:
             self.prime()
-        interval = self.cfg.numerics.rebuild_check_interval
+        interval = self.check_interval
         for _ in range(int(n_steps)):
             self._update_plate()
             kick = 0.5 if self._first_kick else 1.0
@@ -208,6 +218,11 @@ class Simulation:
             self._advance(kick, 1.0)
             self.step_count += 1
             self.time += self.dt
+            self._trace_z[self._trace_n] = self.z_top
+            self._trace_steps[self._trace_n] = self.step_count
+            self._trace_n += 1
+            if self._trace_n == TRACE_LEN:
+                self._flush_trace()
             if self.step_count % interval == 0:
                 self.check()
                 if self.kernels.need_rebuild[None]:
@@ -216,6 +231,56 @@ class Simulation:
             if callback is not None and callback_interval and self.step_count % callback_interval == 0:
                 callback(self)
         self.check()
+
+    # ------------------------------------------------------------------ stages
+    def change_timestep(self, dt: float) -> None:
+        """Switch to a new time step between stages (velocities synchronised first) [s]."""
+        if not self._primed:
+            self.prime()
+        self.kernels.synchronise(self.pool, self.dt)
+        self.dt = float(dt)
+        self._first_kick = True
+
+    def create_bonds(self) -> int:
+        """Bond the live particles now (spec 4.1); returns the number of bonds created."""
+        from calendaring.bonds import BondTable, make_bonds
+
+        if self.bonds is not None:
+            raise SimulationError("bonds exist already: they are created once and never again")
+        if not self._primed:
+            self.prime()
+        arr = self.pool.to_numpy(("pid", "alive", "material", "radius", "position"))
+        slots = np.nonzero(arr["alive"] == 1)[0]
+        live = {k: v[slots] for k, v in arr.items()}
+        live["id"] = live.pop("pid")
+        d = self.cfg.domain
+        sa, sb, ia, ib, rb = make_bonds(self.cfg.bonds, live, slots, self.material_names,
+                                        d.cell_x, d.cell_y)
+        self.bonds = BondTable(self.cfg.bonds, len(sa))
+        self.bonds.set_bonds(sa, sb, ia, ib, rb)
+        return len(sa)
+
+    def _flush_trace(self) -> None:
+        n = self._trace_n
+        if n:
+            forces = self.kernels.trace.to_numpy()[:n]
+            self._traced.append(np.column_stack([self._trace_steps[:n], self._trace_z[:n],
+                                                 forces]))
+            self._trace_n = 0
+
+    def take_trace(self) -> np.ndarray:
+        """Per-step plate record since the last call: columns (step, top-plate z [m], z force
+        on the bottom plate [N], z force on the top plate [N]); compressive loads give a
+        negative bottom and a positive top force."""
+        self._flush_trace()
+        out = np.concatenate(self._traced) if self._traced else np.zeros((0, 4))
+        self._traced = []
+        return out
+
+    def contact_stats(self) -> tuple[int, float]:
+        """(touching particle pairs, largest overlap / smaller radius) at the last step."""
+        n, worst = self.kernels.contact_stats(self.pool, self.table).to_numpy()
+        return int(n), float(worst)
 
     def check(self) -> None:
         """Raise :class:`SimulationError` if a device guard fired (host sync)."""
@@ -265,12 +330,16 @@ class Simulation:
             self.prime()
         d = self.cfg.domain
         ek, er, eg, ee = self.kernels.energies(self.pool, self.table, self.grid, self.dt,
-                                               d.gravity, self.z_bottom, self.z_top).to_numpy()
+                                               self.gravity, self.z_bottom,
+                                               self.z_top).to_numpy()
         led = dict(zip(LEDGER, self.kernels.ledger.to_numpy(), strict=True))
         out = {"kinetic": ek, "rotational": er, "gravity": eg, "elastic": ee, **led}
         out["plastic"] = led["hysteretic_work"] - ee
+        out["bond_elastic"] = self.bonds.stored_energy() if self.bonds is not None else 0.0
+        out["bond_released"] = float(self.bonds.released[None]) if self.bonds is not None else 0.0
         out["total"] = (ek + er + eg + ee + led["damping_normal"] + led["damping_tangential"]
-                        + led["friction"] + led["rolling"] + out["plastic"] - led["plate_work"])
+                        + led["friction"] + led["rolling"] + out["plastic"] - led["plate_work"]
+                        + out["bond_elastic"] + out["bond_released"])
         return out
 
     def state(self) -> dict[str, np.ndarray]:
@@ -288,9 +357,92 @@ class Simulation:
         a["id"] = a.pop("pid")
         return a
 
+    # ------------------------------------------------------------------ checkpoints
+    _HOST_STATE = ("z_bottom", "z_top", "v_top", "dt", "step_count", "time", "_primed",
+                   "_first_kick", "_r_max", "n_rebuilds", "gravity", "check_interval")
+
+    def save_state(self) -> dict:
+        """Everything needed to continue this run bit for bit (host copies, no side effects).
+
+        Keys: ``host`` (scalars), ``pool``, ``table``, ``bonds`` (or None), ``ledger``,
+        ``schedule`` (or None) and ``trace`` (unread per-step plate records).
+        """
+        from calendaring.contacts import PAIR_F64
+        from calendaring.state import SCALAR_FIELDS, VEC_FIELDS
+
+        if self.grid is None or self.table is None:
+            raise SimulationError("save_state needs a primed simulation")
+        n = self.pool.slots_used
+        pool = {name: getattr(self.pool, name).to_numpy()[:n]
+                for name in (*SCALAR_FIELDS, *VEC_FIELDS)}
+        pool["next_id"] = int(self.pool.next_id[None])
+        t = self.table
+        table = {name: getattr(t, name).to_numpy() for name in
+                 ("owner", "partner", "partner_id", "spring", "seg_start", "seg_count",
+                  *PAIR_F64)}
+        table["n_pairs"] = int(t.n_pairs[None])
+        table["capacity"] = t.capacity
+        host = {k: getattr(self, k) for k in self._HOST_STATE}
+        host["first_kick"] = host.pop("_first_kick", True)
+        self._flush_trace()
+        return {
+            "host": host, "pool": pool, "table": table,
+            "bonds": self.bonds.to_numpy() if self.bonds is not None else None,
+            "ledger": self.kernels.ledger.to_numpy(),
+            "need_rebuild": int(self.kernels.need_rebuild[None]),
+            "schedule": None if self._plate_schedule is None else
+            np.vstack(self._plate_schedule),
+            "trace": np.concatenate(self._traced) if self._traced else np.zeros((0, 4)),
+        }
+
+    def load_state(self, state: dict) -> None:
+        """Restore :meth:`save_state` output into this (fresh, same-config) simulation."""
+        from calendaring.bonds import BondTable
+        from calendaring.contacts import ContactTable
+        from calendaring.state import SCALAR_FIELDS, VEC_FIELDS
+
+        pool = state["pool"]
+        n = len(pool["alive"])
+        if n > self.pool.capacity:
+            raise SimulationError(f"checkpoint holds {n} slots > pool capacity {self.pool.capacity}")
+        for name in (*SCALAR_FIELDS, *VEC_FIELDS):
+            f = getattr(self.pool, name)
+            full = f.to_numpy()
+            full[:] = 0
+            full[:n] = pool[name]
+            f.from_numpy(full)
+        self.pool.n_slots[None] = n
+        self.pool.next_id[None] = int(pool["next_id"])
+        host = dict(state["host"])
+        self._first_kick = bool(host.pop("first_kick"))
+        for k, v in host.items():
+            setattr(self, k, v)
+        self._drop_grid()
+        if self.table is not None:
+            self.table.destroy()
+        tab = state["table"]
+        self.table = ContactTable(self.pool.capacity, int(tab["capacity"]))
+        self._ensure_grid()
+        for name, arr in tab.items():
+            if name not in ("n_pairs", "capacity"):
+                getattr(self.table, name).from_numpy(np.asarray(arr))
+        self.table.n_pairs[None] = int(tab["n_pairs"])
+        self.kernels.ledger.from_numpy(np.asarray(state["ledger"], float))
+        self.kernels.need_rebuild[None] = int(state["need_rebuild"])
+        sched = state["schedule"]
+        self._plate_schedule = None if sched is None else (sched[0].copy(), sched[1].copy())
+        if self.bonds is not None:
+            self.bonds.destroy()
+            self.bonds = None
+        if state["bonds"] is not None:
+            self.bonds = BondTable(self.cfg.bonds, max(1, int(state["bonds"]["n_bonds"])))
+            self.bonds.load(state["bonds"])
+        self._trace_n = 0
+        self._traced = [np.asarray(state["trace"])] if len(state["trace"]) else []
+
     def destroy(self) -> None:
         """Free every device allocation of this simulation."""
-        for obj in (self.pool, self.kernels, self.grid, self.table):
+        for obj in (self.pool, self.kernels, self.grid, self.table, self.bonds):
             if obj is not None:
                 obj.destroy()
-        self.grid = self.table = None
+        self.grid = self.table = self.bonds = None

@@ -1,0 +1,270 @@
+"""Carbon-black virtual bonds: Potyondy & Cundall (2004) parallel bonds (spec section 4).
+
+Bonds are created once, at the first step of calendering, between every particle pair with
+at least one particle of a bonding material (``bonds.materials``, default CB) whose centres
+are within ``xi_b (R_A + R_B)`` (paper Eq. 30, ``bonds.radius_ratio`` = 1.5). They are never
+re-created. Each bond is a disk of radius ``R_b = lambda_b min(R_A, R_B)`` with area
+``A = pi R_b^2``, bending moment of area ``I = pi R_b^4 / 4`` and polar moment ``J = 2 I``.
+Starting from zero, every step adds (spec 4.2, the dimensionally consistent P&C forms)::
+
+    dF_n = +S_n A (v_rel . n) dt        compression positive
+    dF_t = -S_t A v_t dt                 tangential force on A (rotated with the frame)
+    dM_n = -S_t J (w_rel . n) dt         twisting moment on A
+    dM_t = -S_n I w_t dt                 bending moment on A (rotated with the frame)
+
+with the relative velocity taken at the bond point ``x_b = x_A + n (R_A + g/2)`` (g the gap).
+Force on A is ``-F_n n + F_t``, torque ``M_n n + M_t + (x_b - x_A) x F_t``; B gets the
+opposite force and moments. A bond fails for good when (paper Eqs. 28-29)::
+
+    sigma = -F_n / A + |M_t| R_b / I >= sigma_c     (tension positive; "abs": |F_n| / A)
+    tau   = |F_t| / A + |M_n| R_b / J >= tau_c
+
+Bonds act in addition to the EEPA contact. A bond whose particle dies (breakage) is removed
+and counted apart from failures. There is no bond damping (P&C parallel bonds are undamped).
+
+Bond states: ``INTACT`` 0, ``FAILED_NORMAL`` 1, ``FAILED_SHEAR`` 2, ``REMOVED`` 3.
+"""
+
+
+import math
+
+import numpy as np
+import taichi as ti
+from scipy.spatial import cKDTree
+
+from calendaring.config import BondsConfig
+from calendaring.laws.tangential import rotate_spring
+
+INTACT, FAILED_NORMAL, FAILED_SHEAR, REMOVED = 0, 1, 2, 3
+STATE_NAMES = {INTACT: "intact", FAILED_NORMAL: "failed_normal", FAILED_SHEAR: "failed_shear",
+               REMOVED: "removed"}
+BOND_ARRAYS = ("slot_a", "slot_b", "id_a", "id_b", "radius", "state", "break_step", "f_n",
+               "m_n", "f_t", "m_t")
+
+
+def find_bond_pairs(position: np.ndarray, radius: np.ndarray, material: np.ndarray,
+                    cell_x: float, cell_y: float, ratio: float,
+                    bonding_materials: list[int]) -> np.ndarray:
+    """Pairs (a, b), a < b (row indices), to bond: one of them of a bonding material and
+    ``|x_a - x_b| <= ratio (R_a + R_b)`` with the periodic minimum image in x and y.
+
+    Returns an (m, 2) int64 array sorted by (a, b).
+    """
+    position = np.asarray(position, float)
+    n = len(radius)
+    if n < 2:
+        return np.zeros((0, 2), np.int64)
+    bonding = np.isin(material, bonding_materials)
+    if not bonding.any():
+        return np.zeros((0, 2), np.int64)
+    pts = position.copy()
+    pts[:, 0] %= cell_x
+    pts[:, 1] %= cell_y
+    z0 = pts[:, 2].min()
+    pts[:, 2] -= z0
+    span_z = 4.0 * (pts[:, 2].max() + 2 * radius.max()) + 1e-12  # z is not periodic
+    tree = cKDTree(pts, boxsize=[cell_x, cell_y, span_z])
+    reach = ratio * (radius[bonding].max() + radius.max())
+    pairs = tree.query_pairs(reach, output_type="ndarray")
+    if pairs.size == 0:
+        return np.zeros((0, 2), np.int64)
+    a, b = pairs[:, 0], pairs[:, 1]
+    d = pts[b] - pts[a]
+    d[:, 0] -= cell_x * np.round(d[:, 0] / cell_x)
+    d[:, 1] -= cell_y * np.round(d[:, 1] / cell_y)
+    dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+    keep = (bonding[a] | bonding[b]) & (dist <= ratio * (radius[a] + radius[b]))
+    out = np.sort(pairs[keep], axis=1).astype(np.int64)
+    order = np.lexsort((out[:, 1], out[:, 0]))
+    return out[order]
+
+
+@ti.data_oriented
+class BondTable:
+    """Fixed list of bonds created once (capacity = number of bonds, at least 1).
+
+    Args:
+        cfg: bond parameters.
+        capacity: number of bonds the table holds.
+    """
+
+    def __init__(self, cfg: BondsConfig, capacity: int) -> None:
+        self.cfg = cfg
+        self.capacity = max(1, int(capacity))
+        self.abs_mode = cfg.normal_criterion == "abs"
+        fb = ti.FieldsBuilder()
+        self.slot_a = ti.field(ti.i32)
+        self.slot_b = ti.field(ti.i32)
+        self.id_a = ti.field(ti.i64)
+        self.id_b = ti.field(ti.i64)
+        self.radius = ti.field(ti.f64)  # bond disk radius R_b [m]
+        self.state = ti.field(ti.i32)
+        self.break_step = ti.field(ti.i32)  # step of failure or removal (-1 while intact)
+        self.f_n = ti.field(ti.f64)  # normal force, compression positive [N]
+        self.m_n = ti.field(ti.f64)  # twisting moment on A along n [N m]
+        self.f_t = ti.Vector.field(3, ti.f64)  # shear force on A [N]
+        self.m_t = ti.Vector.field(3, ti.f64)  # bending moment on A [N m]
+        for f in (self.slot_a, self.slot_b, self.id_a, self.id_b, self.radius, self.state,
+                  self.break_step, self.f_n, self.m_n, self.f_t, self.m_t):
+            fb.dense(ti.i, self.capacity).place(f)
+        self.n_bonds = ti.field(ti.i32)
+        self.released = ti.field(ti.f64)  # elastic energy lost by failed/removed bonds [J]
+        fb.place(self.n_bonds, self.released)
+        self._tree = fb.finalize()
+
+    def destroy(self) -> None:
+        """Free the device memory."""
+        if self._tree is not None:
+            self._tree.destroy()
+            self._tree = None
+
+    # ------------------------------------------------------------------ host API
+    def set_bonds(self, slot_a, slot_b, id_a, id_b, bond_radius) -> None:
+        """Load freshly created bonds (all intact, zero force)."""
+        k = len(slot_a)
+        if k > self.capacity:
+            raise ValueError(f"{k} bonds exceed the table capacity {self.capacity}")
+        arrays = self._empty()
+        arrays["slot_a"][:k] = slot_a
+        arrays["slot_b"][:k] = slot_b
+        arrays["id_a"][:k] = id_a
+        arrays["id_b"][:k] = id_b
+        arrays["radius"][:k] = bond_radius
+        self.load({**arrays, "n_bonds": k, "released": 0.0})
+
+    def _empty(self) -> dict:
+        c = self.capacity
+        return {"slot_a": np.zeros(c, np.int32), "slot_b": np.zeros(c, np.int32),
+                "id_a": np.zeros(c, np.int64), "id_b": np.zeros(c, np.int64),
+                "radius": np.zeros(c), "state": np.zeros(c, np.int32),
+                "break_step": np.full(c, -1, np.int32), "f_n": np.zeros(c), "m_n": np.zeros(c),
+                "f_t": np.zeros((c, 3)), "m_t": np.zeros((c, 3))}
+
+    def load(self, arrays: dict) -> None:
+        """Restore every bond array (a checkpoint or :meth:`set_bonds`)."""
+        full = self._empty()
+        k = int(arrays["n_bonds"])
+        for name in BOND_ARRAYS:
+            full[name][:k] = np.asarray(arrays[name])[:k]
+            getattr(self, name).from_numpy(full[name])
+        self.n_bonds[None] = k
+        self.released[None] = float(arrays["released"])
+
+    def to_numpy(self) -> dict:
+        """Every bond array for the bonds in use, plus ``n_bonds`` and ``released``."""
+        k = int(self.n_bonds[None])
+        out = {name: getattr(self, name).to_numpy()[:k] for name in BOND_ARRAYS}
+        out["n_bonds"] = k
+        out["released"] = float(self.released[None])
+        return out
+
+    def counts(self) -> dict[str, int]:
+        """Number of bonds in each state (host sync)."""
+        state = self.state.to_numpy()[: int(self.n_bonds[None])]
+        return {name: int(np.count_nonzero(state == code)) for code, name in STATE_NAMES.items()}
+
+    # ------------------------------------------------------------------ kernels
+    @ti.kernel
+    def update(self, pool: ti.template(), dt: ti.f64, lx: ti.f64, ly: ti.f64, step: ti.i32):
+        """Increment every intact bond, apply its loads, check failure (one step)."""
+        sn = ti.static(self.cfg.normal_stiffness)
+        st = ti.static(self.cfg.shear_stiffness)
+        sig_c = ti.static(self.cfg.normal_strength)
+        tau_c = ti.static(self.cfg.shear_strength)
+        for b in range(self.n_bonds[None]):
+            if self.state[b] == INTACT:
+                i = self.slot_a[b]
+                j = self.slot_b[b]
+                if pool.alive[i] == 0 or pool.alive[j] == 0:
+                    self.released[None] += self._stored(b)
+                    self.state[b] = REMOVED
+                    self.break_step[b] = step
+                else:
+                    self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step)
+
+    @ti.func
+    def _update_one(self, pool: ti.template(), b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step):
+        d = pool.position[j] - pool.position[i]
+        d[0] -= lx * ti.round(d[0] / lx)
+        d[1] -= ly * ti.round(d[1] / ly)
+        dist = d.norm()
+        if dist > 0.0:
+            nrm = d / dist
+            ri = pool.radius[i]
+            rj = pool.radius[j]
+            gap = dist - ri - rj
+            arm_i = (ri + 0.5 * gap) * nrm
+            arm_j = -(rj + 0.5 * gap) * nrm
+            v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i)
+                     - pool.velocity[j] - pool.angular_velocity[j].cross(arm_j))
+            w_rel = pool.angular_velocity[i] - pool.angular_velocity[j]
+            rb = self.radius[b]
+            area = math.pi * rb * rb
+            inertia = 0.25 * math.pi * rb**4
+            polar = 2.0 * inertia
+            vn = v_rel.dot(nrm)
+            v_t = v_rel - vn * nrm
+            wn = w_rel.dot(nrm)
+            w_t = w_rel - wn * nrm
+            f_n = self.f_n[b] + sn * area * vn * dt
+            f_t = rotate_spring(self.f_t[b], nrm) - st * area * v_t * dt
+            m_n = self.m_n[b] - st * polar * wn * dt
+            m_t = rotate_spring(self.m_t[b], nrm) - sn * inertia * w_t * dt
+            self.f_n[b] = f_n
+            self.f_t[b] = f_t
+            self.m_n[b] = m_n
+            self.m_t[b] = m_t
+            sigma = 0.0
+            if ti.static(self.abs_mode):
+                sigma = ti.abs(f_n) / area + m_t.norm() * rb / inertia
+            else:
+                sigma = -f_n / area + m_t.norm() * rb / inertia
+            tau = f_t.norm() / area + ti.abs(m_n) * rb / polar
+            if sigma >= sig_c or tau >= tau_c:
+                self.released[None] += self._stored(b)
+                self.state[b] = FAILED_NORMAL if sigma >= sig_c else FAILED_SHEAR
+                self.break_step[b] = step
+            else:
+                force_i = -f_n * nrm + f_t
+                moment_i = m_n * nrm + m_t
+                pool.force[i] += force_i
+                pool.force[j] -= force_i
+                pool.torque[i] += moment_i + arm_i.cross(f_t)
+                pool.torque[j] += -moment_i - arm_j.cross(f_t)
+
+    @ti.func
+    def _stored(self, b):
+        """Elastic energy held by bond b [J] (linear springs)."""
+        rb = self.radius[b]
+        area = math.pi * rb * rb
+        inertia = 0.25 * math.pi * rb**4
+        sn = ti.static(self.cfg.normal_stiffness)
+        st = ti.static(self.cfg.shear_stiffness)
+        return 0.5 * (self.f_n[b] ** 2 / (sn * area) + self.f_t[b].norm_sqr() / (st * area)
+                      + self.m_n[b] ** 2 / (st * 2.0 * inertia)
+                      + self.m_t[b].norm_sqr() / (sn * inertia))
+
+    @ti.kernel
+    def stored_energy(self) -> ti.f64:
+        """Elastic energy held by the intact bonds [J]."""
+        e = 0.0
+        for b in range(self.n_bonds[None]):
+            if self.state[b] == INTACT:
+                e += self._stored(b)
+        return e
+
+
+def make_bonds(cfg: BondsConfig, state: dict, slots: np.ndarray, material_names: list[str],
+               cell_x: float, cell_y: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                      np.ndarray, np.ndarray]:
+    """Bond pairs of the live particles in ``state`` (arrays by row, ``slots`` their slots).
+
+    Returns (slot_a, slot_b, id_a, id_b, bond radius [m]).
+    """
+    mats = [material_names.index(m) for m in cfg.materials]
+    pairs = find_bond_pairs(state["position"], state["radius"], state["material"], cell_x,
+                            cell_y, cfg.radius_ratio, mats)
+    a, b = pairs[:, 0], pairs[:, 1]
+    r = state["radius"]
+    return (slots[a].astype(np.int32), slots[b].astype(np.int32), state["id"][a],
+            state["id"][b], cfg.disk_scale * np.minimum(r[a], r[b]))

@@ -1,0 +1,246 @@
+"""Command line: ``calendaring run | inspect | plot | export``.
+
+Exit codes: 0 success, 2 bad input (nothing written), 3 the simulation stopped on a guard
+(diagnostic printed; the last checkpoint is kept), 1 anything else.
+
+    calendaring run --preset quick --out runs/quick.h5
+    calendaring run my.toml --set protocol.stroke=10e-6 --out runs/a.h5 --seed 3
+    calendaring run --preset paper --out runs/paper.h5 --resume     # after a crash
+    calendaring inspect runs/quick.h5
+    calendaring plot runs/quick.h5
+    calendaring export runs/quick.h5 --snapshot 4 --vtk
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from calendaring.config import (
+    PRESETS,
+    ARCHES,
+    load_config,
+    load_preset,
+    parse_override,
+    with_overrides,
+)
+from calendaring.errors import ConfigError, SimulationError
+from calendaring.units import to_mpa, to_um
+
+EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT, EXIT_UNSTABLE = 0, 1, 2, 3
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # argparse already exits 2; keep one message style
+        self.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = _Parser(prog="calendaring", description=__doc__.split("\n\n")[0],
+                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    r = sub.add_parser("run", help="run a calendering simulation into an HDF5 run file")
+    r.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
+    r.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value (dotted key, TOML value); repeatable")
+    r.add_argument("--out", required=True, help="run file to write (.h5)")
+    r.add_argument("--arch", choices=[a for a in ARCHES if a != "auto"], help="Taichi backend")
+    r.add_argument("--seed", type=int, help="random seed (numerics.seed)")
+    r.add_argument("--threads", type=int, help="CPU threads (numerics.threads, 0 = all)")
+    r.add_argument("--resume", action="store_true", help="continue from <out>.ckpt")
+    r.add_argument("--no-breakage", action="store_true",
+                   help="run without particle breakage (this version has no breakage model "
+                        "yet, so every run is without breakage)")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing run file")
+    r.add_argument("--quiet", action="store_true", help="no progress lines")
+    i = sub.add_parser("inspect", help="print a summary of a run file")
+    i.add_argument("run_file")
+    i.add_argument("--json", action="store_true", help="machine-readable summary")
+    p = sub.add_parser("plot", help="pressure-depth and microstructure PNGs of a run file")
+    p.add_argument("run_file")
+    p.add_argument("--out-dir", help="folder for the PNGs (default: next to the run file)")
+    e = sub.add_parser("export", help="write one snapshot as VTK, LAMMPS data or CSV")
+    e.add_argument("run_file")
+    e.add_argument("--snapshot", type=int, required=True, help="snapshot index k")
+    fmt = e.add_mutually_exclusive_group(required=True)
+    fmt.add_argument("--vtk", action="store_true", help="ParaView .vtp (needs pyvista)")
+    fmt.add_argument("--lammps", action="store_true", help="LAMMPS data, atom_style granular")
+    fmt.add_argument("--csv", action="store_true", help="calendaring packing CSV")
+    e.add_argument("--out", help="output path (default: <run>_snap<k>.<ext>)")
+    return ap
+
+
+def _run_config(args):
+    if bool(args.config) == bool(args.preset):
+        raise ConfigError("config", args.config or args.preset,
+                          "exactly one of CONFIG.toml or --preset NAME")
+    cfg = load_preset(args.preset) if args.preset else load_config(Path(args.config))
+    overrides = dict(parse_override(s) for s in args.set)
+    if args.arch:
+        overrides["numerics.arch"] = args.arch
+    if args.seed is not None:
+        overrides["numerics.seed"] = args.seed
+    if args.threads is not None:
+        overrides["numerics.threads"] = args.threads
+    if overrides:
+        cfg = with_overrides(cfg, overrides)
+    return cfg.check_run()
+
+
+def cmd_run(args) -> int:
+    cfg = _run_config(args)
+    out = Path(args.out)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise ConfigError("--out", str(out), "a path ending in .h5 or .hdf5")
+    if out.exists() and not (args.overwrite or args.resume):
+        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    if out.exists() and out.is_dir():
+        raise ConfigError("--out", str(out), "a file path, not a folder")
+    from calendaring.run import CalenderRun
+
+    runner = CalenderRun(cfg, out, progress=not args.quiet, preset=args.preset or "")
+    if args.resume and not runner.checkpoint.exists():
+        raise ConfigError("--resume", str(runner.checkpoint), "an existing checkpoint file")
+    path = runner.execute(resume=args.resume)
+    print(f"wrote {path}")
+    return EXIT_OK
+
+
+def summary(rec) -> dict:
+    """Key figures of a run (SI)."""
+    out = {"file": str(rec.path), "preset": rec.preset, "seed": rec.seed,
+           "software_version": rec.software_version, "breakage_model": rec.breakage_model,
+           "cell_x": rec.cell_x, "cell_y": rec.cell_y, "thickness": rec.thickness,
+           "stroke": rec.stroke, **{k: rec.info.get(k) for k in (
+               "dt", "plate_speed", "bonds_created", "final_depth", "wall_seconds")}}
+    b = rec.info.get("build", {})
+    out["counts"] = b.get("counts")
+    out["porosity_at_thickness"] = b.get("porosity_at_thickness")
+    d = rec.pressure["depth"]
+    out["pressure_at"] = {f"{to_um(x):g} um": rec.pressure_at(x) for x in
+                          (5e-6, 10e-6, 15e-6, rec.stroke)
+                          if len(d) and d[0] - 1e-12 <= x <= d[-1] + 1e-12}
+    out["peak_pressure"] = float(rec.pressure["value"].max()) if len(d) else None
+    s = rec.series
+    if len(s["depth"]):
+        out["final_porosity"] = float(s["porosity"][-1])
+        out["bonds_intact_final"] = int(s["bonds_intact"][-1])
+        out["max_inertial_number_above_reference"] = _max_inertial(rec)
+    out["snapshots"] = [{"index": sn.index, "label": sn.label, "depth": sn.depth,
+                         "particles": int(len(sn.radius))} for sn in rec.snapshots]
+    if "unload" in rec.info:
+        out["unload"] = rec.info["unload"]
+    return out
+
+
+def _max_inertial(rec) -> float | None:
+    import numpy as np
+
+    s = rec.series
+    p_ref = rec.config.protocol.reference_pressure
+    sel = s["top_pressure"] >= p_ref
+    return float(np.nanmax(s["inertial_number"][sel])) if sel.any() else None
+
+
+def cmd_inspect(args) -> int:
+    from calendaring.runfile import read_run
+
+    rec = read_run(args.run_file)
+    s = summary(rec)
+    if args.json:
+        print(json.dumps(s, indent=2, default=str))
+        return EXIT_OK
+    print(f"{s['file']}  (preset {s['preset'] or '-'}, seed {s['seed']}, "
+          f"calendaring {s['software_version']}, breakage: {s['breakage_model']})")
+    print(f"cell {to_um(s['cell_x']):.1f} x {to_um(s['cell_y']):.1f} um, thickness "
+          f"{to_um(s['thickness']):.2f} um, stroke {to_um(s['stroke']):.2f} um")
+    if s["counts"]:
+        print("particles: " + ", ".join(f"{v} {k}" for k, v in s["counts"].items())
+              + f"; porosity at h0 {100 * s['porosity_at_thickness']:.2f} %")
+    print(f"dt {s['dt']:.4g} s, plate speed {s['plate_speed']:.4g} m/s, "
+          f"{s['bonds_created']} bonds created, wall time {s['wall_seconds']:.1f} s")
+    for k, v in s["pressure_at"].items():
+        print(f"  pressure at {k:>8s}: {to_mpa(v):10.4f} MPa")
+    if s.get("final_porosity") is not None:
+        print(f"final porosity {100 * s['final_porosity']:.2f} %, intact bonds "
+              f"{s['bonds_intact_final']}, max inertial number (P >= P_ref) "
+              f"{s['max_inertial_number_above_reference']}")
+    for sn in s["snapshots"]:
+        print(f"  snapshot {sn['index']} ({sn['label']}): depth {to_um(sn['depth']):.3f} um, "
+              f"{sn['particles']} particles")
+    if "unload" in s:
+        print(f"unloading: {s['unload']}")
+    return EXIT_OK
+
+
+def cmd_plot(args) -> int:
+    from calendaring.plots import plot_microstructure, plot_pressure
+    from calendaring.runfile import read_run
+
+    rec = read_run(args.run_file)
+    folder = Path(args.out_dir) if args.out_dir else rec.path.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = rec.path.stem
+    for path in (plot_pressure(rec, folder / f"{stem}_pressure.png"),
+                 plot_microstructure(rec, folder / f"{stem}_microstructure.png")):
+        print(f"wrote {path}")
+    return EXIT_OK
+
+
+def cmd_export(args) -> int:
+    import numpy as np
+
+    from calendaring.packing import Packing, write_csv, write_lammps_data, write_vtk
+    from calendaring.runfile import read_run
+
+    rec = read_run(args.run_file)
+    if not 0 <= args.snapshot < len(rec.snapshots):
+        raise ConfigError("--snapshot", args.snapshot,
+                          f"an index in [0, {len(rec.snapshots) - 1}]")
+    sn = rec.snapshots[args.snapshot]
+    names = rec.config.material_names
+    density = np.array([rec.config.materials[n].density for n in names])[sn.material]
+    pk = Packing(position=sn.position, radius=sn.radius, material=sn.material, ids=sn.id + 1,
+                 cell_x=rec.cell_x, cell_y=rec.cell_y, z_bottom=sn.z_bottom, z_top=sn.z_top,
+                 density=density)
+    ext = ".vtp" if args.vtk else ".data" if args.lammps else ".csv"
+    out = Path(args.out) if args.out else rec.path.with_name(
+        f"{rec.path.stem}_snap{args.snapshot}{ext}")
+    if args.vtk:
+        paths = write_vtk(out, pk, point_data={"normal_force": sn.normal_force,
+                                               "velocity": sn.velocity,
+                                               "n_contacts": sn.n_contacts})
+    elif args.lammps:
+        paths = [write_lammps_data(out, pk)]
+    else:
+        paths = [write_csv(out, pk, material_names=names)]
+    for path in paths:
+        print(f"wrote {path}")
+    return EXIT_OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``calendaring`` command."""
+    args = _parser().parse_args(argv)
+    handler = {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
+               "export": cmd_export}[args.command]
+    from calendaring.packing import PackingError
+    from calendaring.runfile import RunFileError
+
+    try:
+        return handler(args)
+    except (ConfigError, RunFileError, PackingError) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except SimulationError as err:
+        print(f"simulation stopped: {err}", file=sys.stderr)
+        return EXIT_UNSTABLE
+
+
+if __name__ == "__main__":
+    sys.exit(main())
