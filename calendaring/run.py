@@ -87,6 +87,7 @@ class Progress:
         if self.start_done is None:
             self.start_done = done
             self.t0 = now
+            self.last = now  # the first line comes once a rate can be measured
         if not self.enabled or (now - self.last < self.every and not force):
             return
         self.last = now
