@@ -97,10 +97,10 @@ def cmd_run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ConfigError("--out", str(out), "a path ending in .h5 or .hdf5")
+    if out.is_dir():
+        raise ConfigError("--out", str(out), "a file path, not a folder")
     if out.exists() and not (args.overwrite or args.resume):
         raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
-    if out.exists() and out.is_dir():
-        raise ConfigError("--out", str(out), "a file path, not a folder")
     from calendaring.run import CalenderRun
 
     runner = CalenderRun(cfg, out, progress=not args.quiet, preset=args.preset or "")

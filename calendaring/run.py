@@ -39,7 +39,6 @@ from calendaring import runfile
 from calendaring.config import SimConfig, config_hash, config_json
 from calendaring.electrode import diameter_bounds, random_insertion, recipe
 from calendaring.errors import ConfigError, SimulationError
-from calendaring.timestep import critical_timestep
 from calendaring.units import to_mpa, to_um
 
 STAGES = ("settle", "precompact", "relax", "calender", "unload")
@@ -67,6 +66,12 @@ def mean_grain(diameter: np.ndarray, density: np.ndarray) -> tuple[float, float]
     """Mass-weighted mean diameter [m] and density [kg/m^3] of a set of spheres."""
     m = density * diameter**3
     return float(np.sum(m * diameter) / m.sum()), float(np.sum(m * density) / m.sum())
+
+
+def _min_radius(cfg: SimConfig) -> dict[str, float]:
+    """Smallest radius each sized material can have [m] (enters the time step)."""
+    return {name: 0.5 * diameter_bounds(size)[0] for name, size in cfg.electrode.sizes.items()
+            if name in cfg.materials}
 
 
 def _log(msg: str) -> None:
@@ -105,7 +110,7 @@ class RunState:
 
     stage: int = 0  # index into STAGES
     stage_step: int = 0  # steps done in the current stage
-    stage_steps: int = 0  # steps of the current stage (0 = open-ended)
+    stage_steps: int = 0  # steps of the current stage (an upper bound if it may stop early)
     params: dict = field(default_factory=dict)  # per-stage numbers fixed on entry
     info: dict = field(default_factory=dict)  # build report, dt, speeds, counts ...
     series: list = field(default_factory=list)  # rows of SERIES
@@ -199,20 +204,14 @@ class CalenderRun:
         _log(f"electrode: {', '.join(f'{v} {k}' for k, v in b['counts'].items())} particles, "
              f"porosity at {to_um(cfg.electrode.thickness):.1f} um = "
              f"{100 * b['porosity_at_thickness']:.2f} %")
-        min_r = {}
-        for name in names:
-            if name in cfg.electrode.sizes:
-                min_r[name] = 0.5 * diameter_bounds(cfg.electrode.sizes[name])[0]
-        self.sim = sim = Simulation(cfg, capacity=len(rad), min_radius=min_r)
+        self.sim = sim = Simulation(cfg, capacity=len(rad), min_radius=_min_radius(cfg))
         vel = np.zeros((len(rad), 3))
         if first == "settle":
             vel[:, 2] = -cfg.build.settle_velocity
         sim.add_particles(pos, rad, mat, velocity=vel)
         rho = np.array([cfg.materials[n].density for n in names])[mat]
-        mats = [cfg.materials[n] for n in names]
-        dt_run = critical_timestep(rad, mat, mats, cfg.numerics.timestep_fraction,
-                                   cfg.numerics.density_scaling, {names.index(k): v for k, v in
-                                                                  min_r.items()})
+        sim.prime()  # dt = numerics.timestep_fraction x the smallest Rayleigh time
+        dt_run = sim.dt
         dt_build = dt_run * cfg.build.timestep_fraction / cfg.numerics.timestep_fraction
         d_mean, rho_mean = mean_grain(2 * rad, rho * cfg.numerics.density_scaling)
         rs.info.update({
@@ -221,7 +220,6 @@ class CalenderRun:
             "solid_volume": float(np.sum(4 / 3 * math.pi * rad**3)),
             "n_particles": int(len(rad)), "config_hash": config_hash(cfg),
         })
-        sim.prime()
         sim.change_timestep(dt_build)
         sim.check_interval = 1  # coarse steps and fast plates: check the skin every step
         rs.stage = STAGES.index(first)
@@ -240,10 +238,8 @@ class CalenderRun:
         self.rs = ck["run"]
         self.rng.bit_generator.state = ck["rng"]
         st = ck["sim"]
-        names = self.cfg.material_names
-        min_r = {n: 0.5 * diameter_bounds(self.cfg.electrode.sizes[n])[0]
-                 for n in names if n in self.cfg.electrode.sizes}
-        self.sim = Simulation(self.cfg, capacity=len(st["pool"]["alive"]), min_radius=min_r)
+        self.sim = Simulation(self.cfg, capacity=len(st["pool"]["alive"]),
+                              min_radius=_min_radius(self.cfg))
         self.sim.load_state(st)
         _log(f"resumed from {self.checkpoint} at stage {STAGES[self.rs.stage]}, "
              f"step {self.sim.step_count}")
@@ -270,7 +266,7 @@ class CalenderRun:
             travel = z0 - h0
             n = max(1, math.ceil(travel / (cfg.build.plate_speed * sim.dt)))
             rs.stage_steps = n
-            rs.params = {"z_start": z0, "bed_top": bed_top}
+            rs.params = {"z_start": z0}
             sim.set_top_plate(z=z0)
             sim.set_top_plate_history([0.0, n * sim.dt], [z0, h0])
             rs.info["bed_top_after_settling"] = bed_top
@@ -291,8 +287,7 @@ class CalenderRun:
             v = rs.info["plate_speed"]
             n = max(1, math.ceil(cfg.protocol.stroke / (v * sim.dt)))
             rs.stage_steps = n
-            rs.params = {"h0": h0, "t0": sim.time, "step0": sim.step_count, "speed": v,
-                         "duration": n * sim.dt}
+            rs.params = {"h0": h0, "t0": sim.time, "speed": v}
             sim.set_top_plate_history([0.0, n * sim.dt], [h0, h0 - cfg.protocol.stroke])
             sim.take_trace()
             rs.next_snapshot = 0
@@ -420,7 +415,7 @@ class CalenderRun:
         radius = sim.pool.radius.to_numpy()[: sim.pool.slots_used]
         alive = sim.pool.alive.to_numpy()[: sim.pool.slots_used] == 1
         vol = float(np.sum(4 / 3 * math.pi * radius[alive] ** 3))
-        n_alive = int(alive.sum())
+        n_alive = int(np.count_nonzero(alive))
         n_touch, worst = sim.contact_stats()
         v = rs.params["speed"]
         inertial = (v / h * rs.info["mean_diameter"] * math.sqrt(rs.info["mean_density"] / top)
@@ -466,9 +461,9 @@ class CalenderRun:
         rs.snapshots.append({"data": data, "attrs": attrs, "bonds": bonds})
 
     # ------------------------------------------------------------------ files
-    def _maybe_checkpoint(self, force: bool = False) -> None:
+    def _maybe_checkpoint(self) -> None:
         every = self.cfg.output.checkpoint_interval
-        if not force and (every <= 0 or time.perf_counter() - self._last_ckpt < every):
+        if every <= 0 or time.perf_counter() - self._last_ckpt < every:
             return
         runfile.write_checkpoint(self.checkpoint, {
             "config": config_json(self.cfg), "config_hash": config_hash(self.cfg),

@@ -255,6 +255,7 @@ class RunRecord:
 
 
 def _read_group(f: h5py.File, path: Path, group: str, spec: dict) -> dict[str, np.ndarray]:
+    """Datasets ``spec`` (name -> unit, or (unit, description)) of ``group``, checked."""
     if group not in f:
         raise RunFileError(path, f"missing group '{group}'")
     out = {}
@@ -320,14 +321,12 @@ def read_run(path: str | Path) -> RunRecord:
         keys = sorted(f["snapshots"], key=int)
         for k in keys:
             g = f["snapshots"][k]
-            arrays = _read_group(f, path, f"snapshots/{k}", {n: u for n, (u, _) in
-                                                              SNAPSHOT.items()} | {})
+            arrays = _read_group(f, path, f"snapshots/{k}", SNAPSHOT)
             if arrays["position"].ndim != 2 or arrays["position"].shape[1:] != (3,):
                 raise RunFileError(path, f"snapshots/{k}/position is not (n, 3)")
             bonds = None
             if "bonds" in g:
-                bonds = _read_group(f, path, f"snapshots/{k}/bonds",
-                                    {n: u for n, (u, _) in BONDS.items()})
+                bonds = _read_group(f, path, f"snapshots/{k}/bonds", BONDS)
             try:
                 at = {n: g.attrs[n] for n in SNAPSHOT_ATTRS}
             except KeyError as err:

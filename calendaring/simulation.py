@@ -383,7 +383,6 @@ class Simulation:
         table["n_pairs"] = int(t.n_pairs[None])
         table["capacity"] = t.capacity
         host = {k: getattr(self, k) for k in self._HOST_STATE}
-        host["first_kick"] = host.pop("_first_kick", True)
         self._flush_trace()
         return {
             "host": host, "pool": pool, "table": table,
@@ -413,9 +412,7 @@ class Simulation:
             f.from_numpy(full)
         self.pool.n_slots[None] = n
         self.pool.next_id[None] = int(pool["next_id"])
-        host = dict(state["host"])
-        self._first_kick = bool(host.pop("first_kick"))
-        for k, v in host.items():
+        for k, v in state["host"].items():
             setattr(self, k, v)
         self._drop_grid()
         if self.table is not None:

@@ -170,14 +170,15 @@ def test_bonded_pair_conserves_energy():
         sim.prime()
         e0 = sim.energy()
         scale = e0["kinetic"] + e0["rotational"]
-        totals = []
+        totals, stored = [], []
         for _ in range(20):
             sim.run(200)
             e = sim.energy()
             totals.append(e["total"])
+            stored.append(e["bond_elastic"])
             assert int(sim.bonds.state[0]) == INTACT
         assert max(abs(t - e0["total"]) for t in totals) < 2e-3 * scale
-        assert max(sim.energy()["bond_elastic"] for _ in range(1)) >= 0.0
-        assert any(abs(t) > 0 for t in totals)
+        # the bond really exchanges energy with the motion (not a free flight)
+        assert max(stored) > 0.05 * scale
     finally:
         sim.destroy()
