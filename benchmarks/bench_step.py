@@ -7,6 +7,7 @@ plate moving down at ``--speed``. Writes JSON (default benchmarks/results/bench_
 
     python benchmarks/bench_step.py --threads 2
     python benchmarks/bench_step.py --model hertz      # the Hertz-Mindlin reduction
+    python benchmarks/bench_step.py --breakage off     # without the breakage bookkeeping
 
 Speed targets are checked here, never in tests.
 """
@@ -44,7 +45,9 @@ def prepare_dense_bed(cfg, n_am: int, n_cb: int, porosity: float, seed: int = 0,
     pos, rad, mat = random_insertion(diam, mat, cfg.domain.cell_x, cfg.domain.cell_y,
                                      z_insert, rng)
     prep = with_overrides(cfg, {"numerics.timestep_fraction": 0.2,
-                                "numerics.rebuild_check_interval": 1})
+                                "numerics.rebuild_check_interval": 1,
+                                "breakage.enabled": False,
+                                "domain.height": max(cfg.domain.height, z_insert + 1e-6)})
     sim = Simulation(prep, capacity=len(rad))
     try:
         sim.add_particles(pos, rad, mat)
@@ -71,6 +74,8 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--model", choices=("eepa", "hertz"), default="eepa")
     ap.add_argument("--no-energy", action="store_true", help="switch the energy ledger off")
+    ap.add_argument("--breakage", choices=("on", "off"), default="on",
+                    help="Tavares breakage (stressing energy, events, damage) on or off")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_step.json"))
     args = ap.parse_args(argv)
 
@@ -78,7 +83,8 @@ def main(argv=None) -> int:
     from calendaring.simulation import Simulation
 
     over = {"domain.cell_x": args.cell, "domain.cell_y": args.cell,
-            "numerics.threads": args.threads, "numerics.track_energy": not args.no_energy}
+            "numerics.threads": args.threads, "numerics.track_energy": not args.no_energy,
+            "breakage.enabled": args.breakage == "on"}
     cfg = with_overrides(SimConfig(), over)
     if args.model == "hertz":
         for key in ("AM-AM", "AM-CB", "CB-CB"):
@@ -93,7 +99,9 @@ def main(argv=None) -> int:
     pos, rad, mat, vel, z_top = prepare_dense_bed(cfg, args.n_am, args.n_cb, args.porosity, 0,
                                                   prep_speed=args.prep_speed)
     t_prep = time.perf_counter() - t0
-    sim = Simulation(cfg, capacity=len(rad))
+    from calendaring.run import pool_capacity
+
+    sim = Simulation(cfg, capacity=pool_capacity(cfg, rad, mat))
     try:
         sim.add_particles(pos, rad, mat, velocity=vel)
         sim.set_top_plate(z=z_top, velocity=-args.speed)
@@ -124,6 +132,8 @@ def main(argv=None) -> int:
             "rebuilds": sim.n_rebuilds - rebuilds0,
             "top_pressure_Pa": sim.top_pressure(),
             "track_energy": not args.no_energy,
+            "breakage": args.breakage,
+            "breakage_events": sim.n_breakage_events,
             "first_step_s": t_start,
             "prep_s": t_prep,
             "python": sys.version.split()[0],

@@ -54,8 +54,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--threads", type=int, help="CPU threads (numerics.threads, 0 = all)")
     r.add_argument("--resume", action="store_true", help="continue from <out>.ckpt")
     r.add_argument("--no-breakage", action="store_true",
-                   help="run without particle breakage (this version has no breakage model "
-                        "yet, so every run is without breakage)")
+                   help="the no-breakage control (paper R0): breakage.enabled = false, "
+                        "same packing and seed")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run file")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
     i = sub.add_parser("inspect", help="print a summary of a run file")
@@ -87,6 +87,8 @@ def _run_config(args):
         overrides["numerics.seed"] = args.seed
     if args.threads is not None:
         overrides["numerics.threads"] = args.threads
+    if args.no_breakage:
+        overrides["breakage.enabled"] = False
     if overrides:
         cfg = with_overrides(cfg, overrides)
     return cfg.check_run()
@@ -133,6 +135,8 @@ def summary(rec) -> dict:
         out["max_inertial_number_above_reference"] = _max_inertial(rec)
     out["snapshots"] = [{"index": sn.index, "label": sn.label, "depth": sn.depth,
                          "particles": int(len(sn.radius))} for sn in rec.snapshots]
+    out["breakage_events"] = int(len(rec.breakage["parent_id"]))
+    out["fragments"] = int(len(rec.breakage["fragments"]["id"]))
     if "unload" in rec.info:
         out["unload"] = rec.info["unload"]
     return out
@@ -170,6 +174,8 @@ def cmd_inspect(args) -> int:
         print(f"final porosity {100 * s['final_porosity']:.2f} %, intact bonds "
               f"{s['bonds_intact_final']}, max inertial number (P >= P_ref) "
               f"{s['max_inertial_number_above_reference']}")
+    if s["breakage_model"] != "none":
+        print(f"breakage: {s['breakage_events']} events, {s['fragments']} fragments")
     for sn in s["snapshots"]:
         print(f"  snapshot {sn['index']} ({sn['label']}): depth {to_um(sn['depth']):.3f} um, "
               f"{sn['particles']} particles")
@@ -179,15 +185,18 @@ def cmd_inspect(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from calendaring.plots import plot_microstructure, plot_pressure
+    from calendaring.plots import plot_breakage, plot_microstructure, plot_pressure
     from calendaring.runfile import read_run
 
     rec = read_run(args.run_file)
     folder = Path(args.out_dir) if args.out_dir else rec.path.parent
     folder.mkdir(parents=True, exist_ok=True)
     stem = rec.path.stem
-    for path in (plot_pressure(rec, folder / f"{stem}_pressure.png"),
-                 plot_microstructure(rec, folder / f"{stem}_microstructure.png")):
+    paths = [plot_pressure(rec, folder / f"{stem}_pressure.png"),
+             plot_microstructure(rec, folder / f"{stem}_microstructure.png")]
+    if rec.breakage_model != "none":
+        paths.append(plot_breakage(rec, folder / f"{stem}_breakage.png"))
+    for path in paths:
         print(f"wrote {path}")
     return EXIT_OK
 

@@ -343,6 +343,84 @@ class BondsConfig:
                self.normal_criterion in BOND_CRITERIA, f"one of {BOND_CRITERIA}")
 
 
+TRUNCATION_MODES = ("ratio", "percentile", "complement")
+SIBLING_INITS = ("force_free", "fresh")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class BreakageConfig:
+    """Tavares UFRJ breakage of the breakable materials (paper 2.2, spec section 5). SI units.
+
+    The first eight keys are the paper's calibration parameters (Table 2), defaults from its
+    Table 4; percentages are given in percent as in the paper. The rest are [A] choices of
+    the physics specification (sections 5.4-5.10 and 6).
+    """
+
+    enabled: bool = True  # false = the no-breakage control (paper R0); --no-breakage
+    damage_constant: float = 5.549  # gamma [-] (damage law, Eq. 36)
+    e_inf: float = 2161.0  # E_inf [J/kg] (size effect, Eq. 33)
+    d0: float = 9.396e-6  # d0 [m] (size effect, Eq. 33)
+    phi: float = 2.587  # phi [-] (size effect, Eq. 33)
+    sigma_e: float = 0.947  # sigma_E [-]: std of ln E* (Eq. 31)
+    alpha_percentage: float = 34.274  # A [%]: largest t10 (Eq. 39)
+    b_prime: float = 0.030  # b' [-]: t10 slope (Eq. 39)
+    truncation_ratio: float = 89.928  # R_t [%] (Eq. 31 upper truncation)
+    truncation_mode: str = "ratio"  # [A] E_max = R_t E50 | percentile | complement (spec 10.1)
+    device_youngs_modulus: float = 208e9  # [A] surface the fracture energies were measured on
+    device_poisson_ratio: float = 0.3  # (steel; Eq. 33-34 k_s)
+    shear_weight: float = 0.0  # c_t [-] of Eq. 38 ([A] 0: normal work only)
+    min_specific_energy: float = 0.0  # E_min [J/kg]: weaker events cause no damage ([A] 0)
+    event_end_steps: int = 10  # N_end: steps without a loading contact that close an event
+    min_fragment_diameter: float = 2.0e-6  # d_min [m]: smallest fragment (spec 5.9)
+    min_breakable_diameter: float = 4.0e-6  # d_break,min [m]: smaller particles never break
+    sibling_init: str = "force_free"  # [A] overlapping fragments start force-free | fresh
+    placement_candidates: int = 200  # random centres tried per fragment (spec 5.10)
+    relax_iterations: int = 100  # sibling-overlap relaxation sweeps inside the parent
+    fragment_timestep_fraction: float = 0.1  # dt <= this x Rayleigh time of a d_min fragment
+    pool_capacity: int = 0  # particle slots (0 = the worst case: every fragment at d_min)
+    max_breaks_per_step: int = 256  # parents replaced in one step (more wait one step)
+
+    def __post_init__(self) -> None:
+        pos = (("damage_constant", "> 0"), ("e_inf", "> 0 J/kg"), ("d0", "> 0 m"),
+               ("phi", "> 0"), ("sigma_e", "> 0"), ("b_prime", "> 0"),
+               ("min_fragment_diameter", "> 0 m"), ("device_youngs_modulus", "> 0 Pa"))
+        for key, allowed in pos:
+            v = getattr(self, key)
+            _check(key, v, v > 0, allowed)
+        _check("alpha_percentage", self.alpha_percentage, 0 < self.alpha_percentage <= 100,
+               "in (0, 100] %")
+        _check("truncation_ratio", self.truncation_ratio, 0 < self.truncation_ratio <= 100,
+               "in (0, 100] %")
+        _check("truncation_mode", self.truncation_mode, self.truncation_mode in TRUNCATION_MODES,
+               f"one of {TRUNCATION_MODES}")
+        if self.truncation_mode == "complement":
+            _check("truncation_ratio", self.truncation_ratio, self.truncation_ratio < 100,
+                   "< 100 % with truncation_mode = complement (E_max = E50 / (1 - R_t))")
+        _check("device_poisson_ratio", self.device_poisson_ratio,
+               -1 < self.device_poisson_ratio < 0.5, "in (-1, 0.5)")
+        _check("shear_weight", self.shear_weight, 0 <= self.shear_weight <= 1, "in [0, 1]")
+        _check("min_specific_energy", self.min_specific_energy, self.min_specific_energy >= 0,
+               ">= 0 J/kg")
+        _check("event_end_steps", self.event_end_steps, 1 <= self.event_end_steps <= 10**6,
+               "in [1, 1e6]")
+        _check("min_breakable_diameter", self.min_breakable_diameter,
+               self.min_breakable_diameter >= 2 * self.min_fragment_diameter,
+               f">= 2 x min_fragment_diameter = {2 * self.min_fragment_diameter} m (two "
+               "fragments of at least d_min each)")
+        _check("sibling_init", self.sibling_init, self.sibling_init in SIBLING_INITS,
+               f"one of {SIBLING_INITS}")
+        _check("placement_candidates", self.placement_candidates,
+               1 <= self.placement_candidates <= 10**5, "in [1, 1e5]")
+        _check("relax_iterations", self.relax_iterations, 0 <= self.relax_iterations <= 10**5,
+               "in [0, 1e5]")
+        f = self.fragment_timestep_fraction
+        _check("fragment_timestep_fraction", f, 0 < f <= 0.3, "in (0, 0.3]")
+        _check("pool_capacity", self.pool_capacity, self.pool_capacity >= 0,
+               ">= 0 (0 = worst case)")
+        _check("max_breaks_per_step", self.max_breaks_per_step,
+               1 <= self.max_breaks_per_step <= 10**6, "in [1, 1e6]")
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ProtocolConfig:
     """Calendering stroke, plate speed, optional pressure target and unloading."""
@@ -401,6 +479,7 @@ class SimConfig:
     electrode: ElectrodeConfig = field(default_factory=ElectrodeConfig)
     build: BuildConfig = field(default_factory=BuildConfig)
     bonds: BondsConfig = field(default_factory=BondsConfig)
+    breakage: BreakageConfig = field(default_factory=BreakageConfig)
     protocol: ProtocolConfig = field(default_factory=ProtocolConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 

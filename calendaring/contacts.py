@@ -5,8 +5,11 @@ holds the pairs ``seg_start[i] .. seg_start[i] + seg_count[i]``. A pair is a can
 the centre distance is below ``r_i + r_j + skin`` (Verlet list).
 
 History (``delta_max``, tangential ``spring``, the previous overlap and hysteretic force used
-by the work integrals, and the per-contact stressing work ``stress_work`` needed by breakage)
-is keyed by the stable ids: after a rebuild each new pair (i, j) looks for the old entry with
+by the work integrals, and the breakage bookkeeping: the stressing work of the contact on each
+side since that particle's current loading event began, ``work_a`` / ``work_b`` with the
+event numbers ``event_a`` / ``event_b`` they belong to, and for fragments of one particle
+born overlapping the reference overlap ``delta_ref`` the contact law is measured from, with
+the ``sibling`` flag that switches adhesion off until they separate) is keyed by the stable ids: after a rebuild each new pair (i, j) looks for the old entry with
 the same partner id in i's old segment (a linear scan over at most a few entries) and copies
 it, or starts from zero. A pair whose overlap becomes <= 0 has its history cleared by the
 force kernel (the contact ended).
@@ -19,8 +22,10 @@ grows the table (copying the history) and rebuilds, never truncating.
 import numpy as np
 import taichi as ti
 
-PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "stress_work", "normal_force")
-HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "stress_work")
+PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref",
+            "normal_force")
+HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref")
+PAIR_I32 = ("event_a", "event_b", "sibling")  # all history
 
 
 @ti.data_oriented
@@ -50,6 +55,14 @@ class ContactTable:
             f = ti.field(ti.f64)
             fb.dense(ti.i, self.capacity).place(f)
             setattr(self, "old_" + name, f)
+        for name in PAIR_I32:
+            for prefix in ("", "old_"):
+                f = ti.field(ti.i32)
+                fb.dense(ti.i, self.capacity).place(f)
+                setattr(self, prefix + name, f)
+        names = (*HISTORY_F64, *PAIR_I32)  # f64 first
+        self._history = [getattr(self, n) for n in names]
+        self._history_old = [getattr(self, "old_" + n) for n in names]
         self.spring = ti.Vector.field(3, ti.f64)
         self.old_spring = ti.Vector.field(3, ti.f64)
         fb.dense(ti.i, self.capacity).place(self.spring)
@@ -76,14 +89,14 @@ class ContactTable:
         """Current pairs and their history as NumPy arrays (host sync)."""
         n = int(self.n_pairs[None])
         out = {name: getattr(self, name).to_numpy()[:n] for name in
-               ("owner", "partner", "partner_id", *PAIR_F64)}
+               ("owner", "partner", "partner_id", *PAIR_F64, *PAIR_I32)}
         out["spring"] = self.spring.to_numpy()[:n]
         return out
 
     def copy_from(self, other: "ContactTable") -> None:
         """Copy pairs, history and segments from a smaller table (used when growing)."""
         n = int(other.n_pairs[None])
-        for name in ("owner", "partner", "partner_id", *PAIR_F64):
+        for name in ("owner", "partner", "partner_id", *PAIR_F64, *PAIR_I32):
             arr = getattr(self, name).to_numpy()
             arr[:n] = getattr(other, name).to_numpy()[:n]
             getattr(self, name).from_numpy(arr)
@@ -101,10 +114,8 @@ class ContactTable:
         for c in range(self.n_pairs[None]):
             self.old_partner_id[c] = self.partner_id[c]
             self.old_spring[c] = self.spring[c]
-            self.old_delta_max[c] = self.delta_max[c]
-            self.old_delta_prev[c] = self.delta_prev[c]
-            self.old_fhys_prev[c] = self.fhys_prev[c]
-            self.old_stress_work[c] = self.stress_work[c]
+            for k in ti.static(range(len(self._history))):
+                self._history_old[k][c] = self._history[k][c]
         for i in range(pool.n_slots[None]):
             self.old_seg_start[i] = self.seg_start[i]
             self.old_seg_count[i] = self.seg_count[i]
@@ -175,16 +186,16 @@ class ContactTable:
                     found = o
             if found >= 0:
                 self.spring[c] = self.old_spring[found]
-                self.delta_max[c] = self.old_delta_max[found]
-                self.delta_prev[c] = self.old_delta_prev[found]
-                self.fhys_prev[c] = self.old_fhys_prev[found]
-                self.stress_work[c] = self.old_stress_work[found]
+                for k in ti.static(range(len(self._history))):
+                    self._history[k][c] = self._history_old[k][found]
             else:
                 self.spring[c] = ti.Vector([0.0, 0.0, 0.0])
-                self.delta_max[c] = 0.0
-                self.delta_prev[c] = 0.0
-                self.fhys_prev[c] = 0.0
-                self.stress_work[c] = 0.0
+                for k in ti.static(range(len(HISTORY_F64))):
+                    self._history[k][c] = 0.0
+                # a new contact belongs to its particles' current events
+                self.event_a[c] = pool.event_id[i]
+                self.event_b[c] = pool.event_id[self.partner[c]]
+                self.sibling[c] = 0
             self.normal_force[c] = 0.0
 
     @ti.kernel

@@ -14,6 +14,7 @@ synchronised v_n = v_{n-1/2} + dt/2 a_n.
 """
 
 
+import numpy as np
 import taichi as ti
 
 from calendaring.config import SimConfig
@@ -70,11 +71,18 @@ class Kernels:
         self.adhesion_mode = _ADHESION[c.adhesion_mode]
         self.damping_mode = _DAMPING[c.damping_mode]
         self.track_energy = bool(cfg.numerics.track_energy)
+        # stressing-work bookkeeping of the breakage model (spec 5.4), compiled in only when
+        # some material can break
+        self.breakage = bool(cfg.breakage.enabled and any(
+            m.breakable for m in cfg.materials.values()))
+        self.shear_weight = float(cfg.breakage.shear_weight)
         self.n_mat = len(cfg.materials)
         ncol = len(COLUMNS)
         fb = ti.FieldsBuilder()
         self.pair = ti.field(ti.f64)
         self.plate = ti.field(ti.f64)
+        self.breakable = ti.field(ti.i32)  # per material: stressing work is tracked
+        fb.dense(ti.i, self.n_mat).place(self.breakable)
         fb.dense(ti.ijk, (self.n_mat, self.n_mat, ncol)).place(self.pair)
         fb.dense(ti.ijk, (self.n_mat, 2, ncol)).place(self.plate)
         self.ledger = ti.field(ti.f64)
@@ -93,6 +101,8 @@ class Kernels:
                  self.guard_value, self.need_rebuild)
         self._tree = fb.finalize()
         self.pair.from_numpy(pair_table(cfg))
+        self.breakable.from_numpy(np.array([m.breakable for m in cfg.materials.values()],
+                                           np.int32))
         self.plate.from_numpy(plate_table(cfg))
 
     def destroy(self) -> None:
@@ -112,17 +122,22 @@ class Kernels:
 
     @ti.func
     def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, dt,
-             delta_max, spring, fhys_prev):
+             delta_max, spring, fhys_prev, no_adhesion):
         """Contact force of one contact (spec 2-3), shared by particle pairs and plates.
 
         Returns the force on body i, the tangential force, f_hys, the updated history, the
-        normal force magnitude and the energy increments (damping n/t, friction, hysteresis).
+        normal force magnitude, the energy increments (damping n/t, friction, hysteresis) and
+        the stressing-work increment of the contact (spec 5.4: repulsive hysteretic work plus
+        ``breakage.shear_weight`` x tangential spring work). ``no_adhesion`` switches the
+        adhesive terms off (force-free sibling fragments until they first separate).
         """
         n = ti.static(self.n)
         chi = ti.static(self.chi)
         e_star = tab[a, b, COL["e_star"]]
         lam = tab[a, b, COL["plasticity_ratio"]]
         f0 = tab[a, b, COL["pull_off_force"]]
+        if no_adhesion:
+            f0 = 0.0
         beta_hat = tab[a, b, COL["beta_hat"]]
         k1 = eepa_loading_stiffness(e_star, r_star, n)
         k2 = k1 / (1.0 - lam)
@@ -131,6 +146,8 @@ class Kernels:
         k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
                                         tab[a, b, COL["adhesion_stiffness"]], n, chi,
                                         ti.static(self.adhesion_mode))
+        if no_adhesion:
+            k_adh = 0.0
         f_hys = eepa_hysteretic_force(delta, delta_p, k1, k2, k_adh, f0, n, chi)
         delta_dot = v_rel.dot(nrm)
         beta_n = eepa_damping_coefficient(m_star, k1, delta, beta_hat, n,
@@ -140,7 +157,8 @@ class Kernels:
         v_t = v_rel - delta_dot * nrm
         k_t = tangential_stiffness(tab[a, b, COL["g_star"]], r_star, delta, k1,
                                    ti.static(self.xi_t), n)
-        s = rotate_spring(spring, nrm) - k_t * v_t * dt
+        s_old = rotate_spring(spring, nrm)
+        s = s_old - k_t * v_t * dt
         beta_t = 2.0 * beta_hat * ti.sqrt(m_star * k_t)
         f_t = s - beta_t * v_t
         limit = coulomb_limit(tab[a, b, COL["friction"]], f_hys, k_adh, delta, f0, chi)
@@ -157,8 +175,13 @@ class Kernels:
             damp_t = 0.0
         force_i = -f_n * nrm + f_t
         hyst = 0.5 * (fhys_prev + f_hys) * (delta - delta_prev)
+        work = 0.0
+        if ti.static(self.breakage):
+            work = 0.5 * (ti.max(fhys_prev, 0.0) + ti.max(f_hys, 0.0)) * (delta - delta_prev)
+            if ti.static(self.shear_weight > 0.0):
+                work += ti.static(self.shear_weight) * (-0.5) * (s_old + s).dot(v_t) * dt
         return (force_i, f_t, f_hys, dmax, s, ti.abs(f_n), f_nd * delta_dot * dt, damp_t,
-                friction_loss, hyst)
+                friction_loss, hyst, work)
 
     # ------------------------------------------------------------------ step kernels
     @ti.kernel
@@ -238,17 +261,20 @@ class Kernels:
         pool.roll_magnitude[i] = 0.0
         pool.normal_force_sum[i] = 0.0
         pool.n_contacts[i] = 0
+        if ti.static(self.breakage):
+            pool.stress_sum[i] = 0.0
+            pool.loading[i] = 0
         self._plate_contact(pool, i, 0, pool.wall_delta_max_bottom, pool.wall_delta_prev_bottom,
                             pool.wall_fhys_prev_bottom, pool.wall_spring_bottom,
-                            r - (x[2] - z_bottom), 0.0, dt)
+                            pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt)
         self._plate_contact(pool, i, 1, pool.wall_delta_max_top, pool.wall_delta_prev_top,
-                            pool.wall_fhys_prev_top, pool.wall_spring_top,
+                            pool.wall_fhys_prev_top, pool.wall_spring_top, pool.wall_work_top,
                             r - (z_top - x[2]), v_top, dt)
 
     @ti.func
     def _plate_contact(self, pool: ti.template(), i, w: ti.template(), dmax_f: ti.template(),
                        prev_f: ti.template(), fprev_f: ti.template(), spring_f: ti.template(),
-                       delta, v_plate, dt):
+                       work_f: ti.template(), delta, v_plate, dt):
         """Particle i against plate w (0 = bottom, normal from particle -z; 1 = top, +z)."""
         if delta > 0.0:
             nrm = ti.Vector([0.0, 0.0, 2.0 * w - 1.0])
@@ -257,9 +283,16 @@ class Kernels:
             v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm * nrm)
                      - ti.Vector([0.0, 0.0, v_plate]))
             a = pool.material[i]
-            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst) = self._law(
+            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
                 self.plate, a, w, delta, prev_f[i], nrm, v_rel, pool.mass[i], r, dt,
-                dmax_f[i], spring_f[i], fprev_f[i])
+                dmax_f[i], spring_f[i], fprev_f[i], 0)
+            if ti.static(self.breakage):
+                if self.breakable[a]:
+                    wk = work_f[i] + work
+                    work_f[i] = wk
+                    pool.stress_sum[i] += self.plate[a, w, COL["stiffness_partition"]] * wk
+                    if delta > prev_f[i]:
+                        pool.loading[i] = 1
             dmax_f[i] = dmax
             spring_f[i] = s
             prev_f[i] = delta
@@ -278,6 +311,11 @@ class Kernels:
                 ti.atomic_add(self.ledger[L_HYST], hyst)
                 ti.atomic_add(self.ledger[L_PLATE], force[2] * v_plate * dt)
         elif dmax_f[i] > 0.0 or prev_f[i] != 0.0:
+            if ti.static(self.breakage):  # the contact ended: bank its share (spec 5.4)
+                if pool.event_open[i]:
+                    pool.stress_bank[i] += self.plate[pool.material[i], w, COL[
+                        "stiffness_partition"]] * work_f[i]
+                work_f[i] = 0.0
             dmax_f[i] = 0.0
             spring_f[i] = ti.Vector([0.0, 0.0, 0.0])
             if ti.static(self.track_energy):
@@ -302,23 +340,30 @@ class Kernels:
         dist = d.norm()
         ri = pool.radius[i]
         rj = pool.radius[j]
-        delta = ri + rj - dist
+        overlap = ri + rj - dist
+        ref = table.delta_ref[c]
+        if ref > 0.0 and overlap < ref:  # relatives born overlapping move apart: the
+            ref = ti.max(overlap, 0.0)  # reference overlap follows (running minimum)
+            table.delta_ref[c] = ref
+            if ref == 0.0:
+                table.sibling[c] = 0
+        delta = overlap - ref  # the contact law acts on the overlap beyond the reference
         if delta > 0.0 and dist > 0.0:
             nrm = d / dist
-            arm_i = ri - 0.5 * delta
-            arm_j = rj - 0.5 * delta
+            arm_i = ri - 0.5 * overlap
+            arm_j = rj - 0.5 * overlap
             v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i * nrm)
                      - pool.velocity[j] - pool.angular_velocity[j].cross(-arm_j * nrm))
             mi = pool.mass[i]
             mj = pool.mass[j]
             a = pool.material[i]
             b = pool.material[j]
-            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst) = self._law(
+            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
                 self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
-                ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c])
-            f_pos = ti.max(f_hys, 0.0)
-            table.stress_work[c] += 0.5 * (ti.max(table.fhys_prev[c], 0.0) + f_pos) * (
-                delta - table.delta_prev[c])
+                ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
+                table.sibling[c])
+            if ti.static(self.breakage):
+                self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c])
             table.delta_max[c] = dmax
             table.spring[c] = s
             table.delta_prev[c] = delta
@@ -346,11 +391,69 @@ class Kernels:
             if ti.static(self.track_energy):  # last trapezoid down to separation
                 ti.atomic_add(self.ledger[L_HYST], -0.5 * table.fhys_prev[c] *
                               table.delta_prev[c])
-            table.delta_max[c] = 0.0
-            table.delta_prev[c] = 0.0
-            table.fhys_prev[c] = 0.0
-            table.spring[c] = ti.Vector([0.0, 0.0, 0.0])
-            table.normal_force[c] = 0.0
+            self._end_contact(pool, table, c, i, j)
+
+    @ti.func
+    def _end_contact(self, pool: ti.template(), table: ti.template(), c, i, j):
+        """The contact ended: bank the stressing work, clear the history (not the reference
+        overlap of relatives, which ends only when they separate)."""
+        if ti.static(self.breakage):
+            self._bank(pool, table, c, i, j)
+        table.delta_max[c] = 0.0
+        table.delta_prev[c] = 0.0
+        table.fhys_prev[c] = 0.0
+        table.spring[c] = ti.Vector([0.0, 0.0, 0.0])
+        table.normal_force[c] = 0.0
+
+    @ti.func
+    def _stress_work(self, pool: ti.template(), table: ti.template(), c, i, j, a, b, work,
+                     loading):
+        """Add a contact's stressing work to each breakable side's event and E_k (spec 5.4)."""
+        if self.breakable[a]:
+            ev_i = pool.event_id[i]
+            if table.event_a[c] != ev_i:  # the owner closed an event since: start afresh
+                table.event_a[c] = ev_i
+                table.work_a[c] = 0.0
+            wa = table.work_a[c] + work
+            table.work_a[c] = wa
+            pool.stress_sum[i] += self.pair[a, b, COL["stiffness_partition"]] * wa
+            if loading:
+                pool.loading[i] = 1
+        if self.breakable[b]:
+            ev_j = pool.event_id[j]
+            if table.event_b[c] != ev_j:
+                table.event_b[c] = ev_j
+                table.work_b[c] = 0.0
+            wb = table.work_b[c] + work
+            table.work_b[c] = wb
+            pool.stress_sum[j] += self.pair[b, a, COL["stiffness_partition"]] * wb
+            if loading:
+                pool.loading[j] = 1
+
+    @ti.func
+    def _bank(self, pool: ti.template(), table: ti.template(), c, i, j):
+        """A contact ends: the open events of its particles keep their shares (spec 5.4)."""
+        a = pool.material[i]
+        b = pool.material[j]
+        if pool.alive[i] and pool.event_open[i] and table.event_a[c] == pool.event_id[i]:
+            pool.stress_bank[i] += self.pair[a, b, COL["stiffness_partition"]] * table.work_a[c]
+        if pool.alive[j] and pool.event_open[j] and table.event_b[c] == pool.event_id[j]:
+            pool.stress_bank[j] += self.pair[b, a, COL["stiffness_partition"]] * table.work_b[c]
+        table.work_a[c] = 0.0
+        table.work_b[c] = 0.0
+
+    @ti.kernel
+    def end_dead_contacts(self, pool: ti.template(), table: ti.template()):
+        """Contacts with a particle that died (a broken parent): the survivor banks its share
+        and the contact history is cleared."""
+        for c in range(table.n_pairs[None]):
+            i = table.owner[c]
+            j = table.partner[c]
+            if (pool.alive[i] == 0 or pool.alive[j] == 0) and (
+                    table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
+                self._end_contact(pool, table, c, i, j)
+                table.delta_ref[c] = 0.0
+                table.sibling[c] = 0
 
     # ------------------------------------------------------------------ observables
     @ti.kernel
@@ -385,7 +488,8 @@ class Kernels:
                 ri = pool.radius[i]
                 rj = pool.radius[j]
                 ee += self._stored(self.pair, pool.material[i], pool.material[j],
-                                   ri + rj - d.norm(), ri * rj / (ri + rj), table.delta_max[c])
+                                   ri + rj - d.norm() - table.delta_ref[c], ri * rj / (ri + rj),
+                                   table.delta_max[c])
         return ti.Vector([ek, er, eg, ee])
 
     @ti.func

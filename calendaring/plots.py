@@ -77,3 +77,45 @@ def plot_microstructure(rec: RunRecord, path: str | Path) -> Path:
     out = _save(fig, Path(path))
     plt.close(fig)
     return out
+
+
+def breakage_histogram(rec: RunRecord, bins: int = 30) -> tuple[np.ndarray, np.ndarray,
+                                                                   np.ndarray]:
+    """Counts of breakage events binned by parent diameter [m] and peak load [N] (paper
+    Fig. 9 layout): (counts (diameter bin, load bin), diameter edges, load edges)."""
+    b = rec.breakage
+    d, f = b["diameter"], b["peak_load"]
+    d_lo, d_hi = (d.min(), d.max()) if len(d) else (0.0, 1.0)
+    f_lo, f_hi = (f.min(), f.max()) if len(f) else (0.0, 1.0)
+    d_edges = np.linspace(d_lo, d_hi if d_hi > d_lo else d_lo + 1e-9, bins + 1)
+    f_edges = np.linspace(f_lo, f_hi if f_hi > f_lo else f_lo + 1e-9, bins + 1)
+    counts, _, _ = np.histogram2d(d, f, bins=(d_edges, f_edges))
+    return counts, d_edges, f_edges
+
+
+def plot_breakage(rec: RunRecord, path: str | Path) -> Path:
+    """Breakage statistics: the 30 x 30 histogram of peak load against parent diameter,
+    events against depth, and the fragment size distribution."""
+    plt = _pyplot()
+    b = rec.breakage
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8), dpi=130)
+    counts, d_edges, f_edges = breakage_histogram(rec)
+    im = axes[0].pcolormesh(to_um(d_edges), 1e3 * f_edges, counts.T, cmap="viridis")
+    fig.colorbar(im, ax=axes[0], label="events")
+    axes[0].set_xlabel("parent diameter [um]")
+    axes[0].set_ylabel("peak load before breakage [mN]")
+    axes[0].set_title(f"{len(b['parent_id'])} breakage events (30 x 30 bins)", fontsize=9)
+    axes[1].plot(to_um(rec.series["depth"]), rec.series["breakage_events"])
+    axes[1].set_xlabel("calendering depth [um]")
+    axes[1].set_ylabel("breakage events so far")
+    frag = to_um(b["fragments"]["diameter"])
+    if len(frag):
+        axes[2].hist(frag, bins=30, color="tab:orange", label="fragments")
+    axes[2].hist(to_um(b["diameter"]), bins=30, histtype="step", color="k", label="parents")
+    axes[2].set_xlabel("diameter [um]")
+    axes[2].set_ylabel("count")
+    axes[2].legend(fontsize=8)
+    fig.tight_layout()
+    out = _save(fig, Path(path))
+    plt.close(fig)
+    return out

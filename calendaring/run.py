@@ -44,7 +44,12 @@ from calendaring.units import to_mpa, to_um
 STAGES = ("settle", "precompact", "relax", "calender", "unload")
 SERIES = ("step", "time", "depth", "top_pressure", "bottom_pressure", "porosity",
           "coordination", "max_overlap_ratio", "inertial_number", "bonds_intact",
-          "bonds_failed_normal", "bonds_failed_shear", "bonds_removed")
+          "bonds_failed_normal", "bonds_failed_shear", "bonds_removed", "particles",
+          "breakage_events")
+# one row per breakage event (RunState.breakage), columns in this order
+BREAKAGE_COLUMNS = ("parent_id", "diameter", "peak_load", "stressing_energy",
+                    "fracture_energy", "e50", "t10", "n_fragments", "first_fragment_id", "step",
+                    "time", "depth")
 
 
 def plate_speed(cfg: SimConfig, diameter: np.ndarray, density: np.ndarray) -> float:
@@ -119,6 +124,8 @@ class RunState:
     trace: list = field(default_factory=list)  # per-step (step, z_top, f_bottom, f_top) blocks
     unload_trace: list = field(default_factory=list)
     snapshots: list = field(default_factory=list)  # dicts of arrays + attrs
+    breakage: list = field(default_factory=list)  # rows of BREAKAGE_COLUMNS
+    fragment_diameters: list = field(default_factory=list)  # per event row, [m]
     next_snapshot: int = 0
     wall: float = 0.0  # wall seconds spent so far (over resumes)
 
@@ -204,7 +211,9 @@ class CalenderRun:
         _log(f"electrode: {', '.join(f'{v} {k}' for k, v in b['counts'].items())} particles, "
              f"porosity at {to_um(cfg.electrode.thickness):.1f} um = "
              f"{100 * b['porosity_at_thickness']:.2f} %")
-        self.sim = sim = Simulation(cfg, capacity=len(rad), min_radius=_min_radius(cfg))
+        capacity = pool_capacity(cfg, rad, mat)
+        rs.info["pool_capacity"] = capacity
+        self.sim = sim = Simulation(cfg, capacity=capacity, min_radius=_min_radius(cfg))
         vel = np.zeros((len(rad), 3))
         if first == "settle":
             vel[:, 2] = -cfg.build.settle_velocity
@@ -221,6 +230,7 @@ class CalenderRun:
             "n_particles": int(len(rad)), "config_hash": config_hash(cfg),
         })
         sim.change_timestep(dt_build)
+        sim.breakage_active = False  # breakage starts with calendering
         sim.check_interval = 1  # coarse steps and fast plates: check the skin every step
         rs.stage = STAGES.index(first)
         self._enter_stage()
@@ -238,7 +248,7 @@ class CalenderRun:
         self.rs = ck["run"]
         self.rng.bit_generator.state = ck["rng"]
         st = ck["sim"]
-        self.sim = Simulation(self.cfg, capacity=len(st["pool"]["alive"]),
+        self.sim = Simulation(self.cfg, capacity=int(self.rs.info["pool_capacity"]),
                               min_radius=_min_radius(self.cfg))
         self.sim.load_state(st)
         _log(f"resumed from {self.checkpoint} at stage {STAGES[self.rs.stage]}, "
@@ -281,6 +291,7 @@ class CalenderRun:
             sim.check_interval = cfg.numerics.rebuild_check_interval
             sim.set_top_plate(z=h0, velocity=0.0)
             n_bonds = sim.create_bonds() if cfg.bonds.enabled else 0
+            sim.start_breakage()  # the build stages are breakage-free
             rs.info["bonds_created"] = n_bonds
             rs.info["calender_step0"] = sim.step_count
             rs.info["bed_after_build"] = self._bed_report()
@@ -345,6 +356,8 @@ class CalenderRun:
                 row = self._record_series()
                 self._snapshots_due()
                 extra += f" P {to_mpa(row[SERIES.index('top_pressure')]):9.3f} MPa"
+                if sim.breakage_on:
+                    extra += f" breakages {len(rs.breakage)}"
                 tp = cfg.protocol.target_pressure
                 if tp > 0 and row[SERIES.index("top_pressure")] >= tp:
                     stop = True
@@ -417,6 +430,7 @@ class CalenderRun:
         vol = float(np.sum(4 / 3 * math.pi * radius[alive] ** 3))
         n_alive = int(np.count_nonzero(alive))
         n_touch, worst = sim.contact_stats()
+        self._take_breakage()
         v = rs.params["speed"]
         inertial = (v / h * rs.info["mean_diameter"] * math.sqrt(rs.info["mean_density"] / top)
                     if top > 0 else float("nan"))
@@ -425,13 +439,28 @@ class CalenderRun:
         row = [sim.step_count, sim.time - rs.params["t0"], rs.params["h0"] - sim.z_top, top,
                bottom, 1 - vol / (area * h), 2.0 * n_touch / max(1, n_alive), worst, inertial,
                counts["intact"], counts["failed_normal"], counts["failed_shear"],
-               counts["removed"]]
+               counts["removed"], n_alive, len(rs.breakage)]
         rs.series.append(row)
         energy = sim.energy()
         if not rs.energy_keys:
             rs.energy_keys = list(energy)
         rs.energy.append([energy[k] for k in rs.energy_keys])
         return row
+
+    def _take_breakage(self) -> None:
+        """Move the engine's breakage records into the run state (one row per event)."""
+        rs = self.rs
+        for rec in self.sim.take_breakage():
+            depth = self.sim.z_bottom + self.cfg.electrode.thickness - rec["z_top"]
+            t = (rec["step"] - rs.info["calender_step0"]) * rs.info["dt"]
+            for k in range(len(rec["parent_id"])):
+                rs.breakage.append([int(rec["parent_id"][k]), float(rec["diameter"][k]),
+                                    float(rec["peak"][k]), float(rec["energy"][k]),
+                                    float(rec["fracture"][k]), float(rec["e50"][k]),
+                                    float(rec["t10"][k]), int(rec["nfrag"][k]),
+                                    int(rec["first_id"][k]), int(rec["step"]), float(t),
+                                    float(depth)])
+                rs.fragment_diameters.append([float(x) for x in rec["fragment_diameters"][k]])
 
     def _snapshots_due(self) -> None:
         rs = self.rs
@@ -447,7 +476,8 @@ class CalenderRun:
         s = sim.state()
         data = {"position": s["position"], "radius": s["radius"], "material": s["material"],
                 "id": s["id"], "velocity": s["velocity"], "normal_force": s["normal_force_sum"],
-                "n_contacts": s["n_contacts"]}
+                "n_contacts": s["n_contacts"], "parent_id": s["parent_id"],
+                "fracture_energy": s["fracture_energy"], "peak_load": s["peak_load"]}
         f_bottom, f_top = sim.plate_forces()
         attrs = {"depth": rs.params["h0"] - sim.z_top, "step": sim.step_count,
                  "time": sim.time - rs.params["t0"], "z_top": sim.z_top,
@@ -465,6 +495,7 @@ class CalenderRun:
         every = self.cfg.output.checkpoint_interval
         if every <= 0 or time.perf_counter() - self._last_ckpt < every:
             return
+        self._take_breakage()
         runfile.write_checkpoint(self.checkpoint, {
             "config": config_json(self.cfg), "config_hash": config_hash(self.cfg),
             "run": self.rs, "rng": self.rng.bit_generator.state, "sim": self.sim.save_state()})
@@ -481,8 +512,23 @@ class CalenderRun:
         unload = _block_mean(unload, stride)
         info = dict(rs.info)
         info["wall_seconds"] = rs.wall
+        self._take_breakage()
+        rows = np.array(rs.breakage, float).reshape(-1, len(BREAKAGE_COLUMNS))
+        brk = {k: rows[:, i] for i, k in enumerate(BREAKAGE_COLUMNS)}
+        for k in ("parent_id", "n_fragments", "first_fragment_id", "step"):
+            brk[k] = np.array([r[BREAKAGE_COLUMNS.index(k)] for r in rs.breakage], np.int64)
+        n_frag = brk["n_fragments"]
+        brk["fragments"] = {
+            "id": np.concatenate([f + np.arange(n, dtype=np.int64) for f, n in
+                                  zip(brk["first_fragment_id"], n_frag, strict=True)]
+                                 or [np.zeros(0, np.int64)]),
+            "diameter": np.array([d for ds in rs.fragment_diameters for d in ds], float),
+            "event": np.repeat(np.arange(len(n_frag), dtype=np.int64), n_frag)}
+        info["breakage_events"] = len(rs.breakage)
         return runfile.write_run(self.out, {
             "config": cfg, "preset": self.preset, "seed": cfg.numerics.seed, "info": info,
+            "breakage_model": "tavares_ufrj" if self.sim.breakage_on else "none",
+            "breakage": brk,
             "pressure": {"step": pressure[:, 0], "depth": h0 - pressure[:, 1],
                          "value": pressure[:, 3] / area, "bottom": -pressure[:, 2] / area,
                          "time": (pressure[:, 0] - rs.info["calender_step0"]) * rs.info["dt"]},
@@ -494,6 +540,24 @@ class CalenderRun:
                        for i, k in enumerate(rs.energy_keys)},
             "snapshots": rs.snapshots,
         })
+
+
+def pool_capacity(cfg: SimConfig, radius: np.ndarray, material: np.ndarray) -> int:
+    """Particle slots for a run: the particles, plus every fragment that can ever exist
+    when breakage is on (``breakage.pool_capacity``, or the worst case of
+    :func:`calendaring.breakage.worst_case_slots`)."""
+    from calendaring.breakage import breakable_mask, worst_case_slots
+
+    n = len(radius)
+    brk = breakable_mask(cfg)
+    if not (cfg.breakage.enabled and brk.any()):
+        return n
+    if cfg.breakage.pool_capacity:
+        if cfg.breakage.pool_capacity < n:
+            raise ConfigError("breakage.pool_capacity", cfg.breakage.pool_capacity,
+                              f"0 (worst case) or >= the {n} particles of the bed")
+        return cfg.breakage.pool_capacity
+    return worst_case_slots(2 * np.asarray(radius), brk[np.asarray(material)], cfg.breakage)
 
 
 def _block_mean(trace: np.ndarray, stride: int) -> np.ndarray:
@@ -515,4 +579,4 @@ def run(cfg: SimConfig, out: str | Path, resume: bool = False, progress: bool = 
     return CalenderRun(cfg, out, progress=progress, preset=preset).execute(resume=resume)
 
 
-__all__ = ["STAGES", "SERIES", "CalenderRun", "Progress", "mean_grain", "plate_speed", "run"]
+__all__ = ["BREAKAGE_COLUMNS", "STAGES", "SERIES", "CalenderRun", "pool_capacity", "Progress", "mean_grain", "plate_speed", "run"]

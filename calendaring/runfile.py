@@ -3,13 +3,14 @@
 Other packages and users read runs only through :func:`read_run`, which returns a typed
 :class:`RunRecord` and rejects corrupt, truncated or foreign files with :class:`RunFileError`.
 Every dataset carries a ``unit`` attribute (SI; ``"1"`` for counts and ratios) and a
-``description``. Schema version 1:
+``description``. Schema version 2:
 
 Root attributes: ``format`` = "calendaring-run", ``schema_version``, ``software_version``,
 ``config`` (canonical JSON of the full configuration), ``config_hash``, ``seed``, ``preset``,
 ``created`` (UTC ISO 8601), ``cell_x``, ``cell_y``, ``thickness``, ``stroke`` (m),
-``breakage_model``, ``info`` (JSON: build report, time steps, plate speed, bond count,
-springback, wall time).
+``breakage_model`` (``"tavares_ufrj"`` or ``"none"`` for the no-breakage control),
+``info`` (JSON: build report, time steps, plate speed, bond count, pool capacity, breakage
+event count, springback, wall time).
 
 =============================  ======  ==================================================
 dataset                        unit    content
@@ -23,8 +24,25 @@ unloading/depth, value, bottom m, Pa   the same while the plate lifts (empty if 
 series/<name>                  see     one row per ``output.record_spacing`` of travel:
                                SERIES  step, time, depth, top/bottom pressure (means over
                                        the row's steps), porosity, coordination, largest
-                                       overlap ratio, inertial number, bond counts
-energy/<term>                  J       energy ledger at the series rows
+                                       overlap ratio, inertial number, bond counts, live
+                                       particles, breakage events so far
+energy/<term>                  J       energy ledger at the series rows (``breakage``: stored
+                                       energy removed by particle replacements)
+breakage/parent_id             1       one row per breakage event: id of the broken particle
+breakage/diameter              m       its diameter
+breakage/peak_load             N       the largest total contact normal force (sum over its
+                                       contacts of |F_n|, paper Fig. 7) it sustained over its
+                                       life before breaking
+breakage/stressing_energy      J/kg    specific stressing energy E_k at breakage
+breakage/fracture_energy       J/kg    its (damaged) fracture energy E'_f at breakage
+breakage/e50                   J/kg    median fracture energy E50 at its size (Eq. 33)
+breakage/t10                   1       breakage index t10 (fraction, Eq. 39)
+breakage/n_fragments           1       fragments that replaced it
+breakage/first_fragment_id     1       their ids are first_fragment_id + 0 .. n - 1
+breakage/step, time, depth     1, s, m step, time since calendering began, plate depth
+breakage/fragments/id          1       one row per fragment: its id
+breakage/fragments/diameter    m       its diameter
+breakage/fragments/event       1       its event row in breakage/
 snapshots/<k>/position         m       particle centres (n, 3)
 snapshots/<k>/radius           m
 snapshots/<k>/material         1       0 = AM, 1 = CB (index into the config materials)
@@ -32,6 +50,9 @@ snapshots/<k>/id               1       stable particle id
 snapshots/<k>/velocity         m/s
 snapshots/<k>/normal_force     N       total contact normal force on the particle
 snapshots/<k>/n_contacts       1       touching contacts (particles and plates)
+snapshots/<k>/parent_id        1       id of the particle it broke from (-1: original)
+snapshots/<k>/fracture_energy  J/kg    current (damaged) fracture energy (0 if unbreakable)
+snapshots/<k>/peak_load        N       largest total contact normal force so far
 snapshots/<k>/bonds/*          -       id_a, id_b (1), state (1: 0 intact, 1 failed in
                                        tension, 2 failed in shear, 3 removed), normal_force
                                        (N, compression positive), radius (m)
@@ -62,12 +83,13 @@ from calendaring.config import SimConfig, config_hash, config_json, load_config_
 
 FORMAT = "calendaring-run"
 CHECKPOINT_FORMAT = "calendaring-checkpoint"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 SERIES_UNITS = {"step": "1", "time": "s", "depth": "m", "top_pressure": "Pa",
                 "bottom_pressure": "Pa", "porosity": "1", "coordination": "1",
                 "max_overlap_ratio": "1", "inertial_number": "1", "bonds_intact": "1",
-                "bonds_failed_normal": "1", "bonds_failed_shear": "1", "bonds_removed": "1"}
+                "bonds_failed_normal": "1", "bonds_failed_shear": "1", "bonds_removed": "1",
+                "particles": "1", "breakage_events": "1"}
 SERIES_DESCRIPTIONS = {
     "step": "time step at the end of the row", "time": "time since calendering started",
     "depth": "calendering displacement from h0", "top_pressure": "mean top-plate pressure",
@@ -78,7 +100,9 @@ SERIES_DESCRIPTIONS = {
     "inertial_number": "(v/h) d sqrt(rho/P), NaN while P = 0",
     "bonds_intact": "intact bonds", "bonds_failed_normal": "bonds failed in tension",
     "bonds_failed_shear": "bonds failed in shear",
-    "bonds_removed": "bonds removed with a broken particle"}
+    "bonds_removed": "bonds removed with a broken particle",
+    "particles": "live particles (originals and fragments)",
+    "breakage_events": "breakage events since calendering began"}
 PRESSURE = {"step": ("1", "time step of the sample"),
             "time": ("s", "time since the start of calendering"),
             "depth": ("m", "calendering displacement from h0 (increasing)"),
@@ -88,7 +112,26 @@ SNAPSHOT = {"position": ("m", "particle centres"), "radius": ("m", "particle rad
             "material": ("1", "material index: 0 = AM, 1 = CB"),
             "id": ("1", "stable particle id"), "velocity": ("m/s", "particle velocities"),
             "normal_force": ("N", "total contact normal force on the particle"),
-            "n_contacts": ("1", "touching contacts (particles and plates)")}
+            "n_contacts": ("1", "touching contacts (particles and plates)"),
+            "parent_id": ("1", "id of the particle it broke from (-1 for originals)"),
+            "fracture_energy": ("J/kg", "current (damaged) fracture energy"),
+            "peak_load": ("N", "largest total contact normal force so far")}
+BREAKAGE = {
+    "parent_id": ("1", "id of the broken particle"),
+    "diameter": ("m", "diameter of the broken particle"),
+    "peak_load": ("N", "largest total contact normal force (sum over contacts of |F_n|) the "
+                       "particle sustained over its life before breaking"),
+    "stressing_energy": ("J/kg", "specific stressing energy E_k at breakage"),
+    "fracture_energy": ("J/kg", "damaged fracture energy E'_f at breakage"),
+    "e50": ("J/kg", "median fracture energy E50 at the parent size (Eq. 33)"),
+    "t10": ("1", "breakage index t10 as a fraction (Eq. 39)"),
+    "n_fragments": ("1", "number of fragments"),
+    "first_fragment_id": ("1", "fragment ids are first_fragment_id + 0 .. n_fragments - 1"),
+    "step": ("1", "time step of the breakage"),
+    "time": ("s", "time since calendering began"),
+    "depth": ("m", "calendering displacement from h0 at breakage")}
+FRAGMENTS = {"id": ("1", "fragment id"), "diameter": ("m", "fragment diameter"),
+             "event": ("1", "row of the breakage event in breakage/")}
 BONDS = {"id_a": ("1", "id of the first particle"), "id_b": ("1", "id of the second particle"),
          "state": ("1", "0 intact, 1 failed in tension, 2 failed in shear, 3 removed"),
          "normal_force": ("N", "bond normal force, compression positive"),
@@ -160,7 +203,7 @@ def write_run(path: str | Path, data: dict) -> Path:
         a["cell_y"] = cfg.domain.cell_y
         a["thickness"] = cfg.electrode.thickness
         a["stroke"] = cfg.protocol.stroke
-        a["breakage_model"] = data.get("breakage_model", "none")
+        a["breakage_model"] = data["breakage_model"]
         a["info"] = _json(data["info"])
         for group, spec in (("pressure", PRESSURE), ("unloading", UNLOADING)):
             g = f.create_group(group)
@@ -170,6 +213,12 @@ def write_run(path: str | Path, data: dict) -> Path:
         g = f.create_group("series")
         for k, unit in SERIES_UNITS.items():
             _dataset(g, k, data["series"][k], unit, SERIES_DESCRIPTIONS[k])
+        g = f.create_group("breakage")
+        for k, (unit, desc) in BREAKAGE.items():
+            _dataset(g, k, data["breakage"][k], unit, desc)
+        fr = g.create_group("fragments")
+        for k, (unit, desc) in FRAGMENTS.items():
+            _dataset(fr, k, data["breakage"]["fragments"][k], unit, desc)
         g = f.create_group("energy")
         for k, v in data["energy"].items():
             _dataset(g, k, v, "J", f"energy ledger term {k}")
@@ -208,6 +257,9 @@ class Snapshot:
     velocity: np.ndarray  # [m/s]
     normal_force: np.ndarray  # [N]
     n_contacts: np.ndarray
+    parent_id: np.ndarray
+    fracture_energy: np.ndarray  # [J/kg]
+    peak_load: np.ndarray  # [N]
     bonds: dict | None  # id_a, id_b, state, normal_force [N], radius [m]
 
     def porosity(self, cell_x: float, cell_y: float) -> float:
@@ -239,6 +291,7 @@ class RunRecord:
     series: dict[str, np.ndarray]
     energy: dict[str, np.ndarray]
     snapshots: list[Snapshot]
+    breakage: dict[str, np.ndarray]  # BREAKAGE columns, plus "fragments": FRAGMENTS columns
 
     def snapshot_near(self, depth: float) -> Snapshot:
         """The snapshot whose depth is closest to ``depth`` [m]."""
@@ -312,6 +365,8 @@ def read_run(path: str | Path) -> RunRecord:
         pressure = _read_group(f, path, "pressure", PRESSURE)
         unloading = _read_group(f, path, "unloading", UNLOADING)
         series = _read_group(f, path, "series", SERIES_UNITS)
+        breakage = _read_group(f, path, "breakage", BREAKAGE)
+        breakage["fragments"] = _read_group(f, path, "breakage/fragments", FRAGMENTS)
         if "energy" not in f:
             raise RunFileError(path, "missing group 'energy'")
         energy = _read_group(f, path, "energy", dict.fromkeys(f["energy"], "J"))
@@ -345,7 +400,7 @@ def read_run(path: str | Path) -> RunRecord:
                      thickness=float(scalars["thickness"]), stroke=float(scalars["stroke"]),
                      breakage_model=str(scalars["breakage_model"]), info=info,
                      pressure=pressure, unloading=unloading, series=series, energy=energy,
-                     snapshots=snaps)
+                     snapshots=snaps, breakage=breakage)
 
 
 # ---------------------------------------------------------------------- checkpoints
@@ -418,7 +473,8 @@ def read_checkpoint(path: str | Path) -> dict:
                    "rng": _get_group(f["rng"]), "sim": _get_group(f["sim"])}
     except OSError as err:
         raise RunFileError(path, f"unreadable checkpoint ({err})") from None
-    for key in ("series", "energy", "trace", "unload_trace", "snapshots", "energy_keys"):
+    for key in ("series", "energy", "trace", "unload_trace", "snapshots", "energy_keys",
+                "breakage", "fragment_diameters"):
         run[key] = list(run.get(key) or [])
     out["run"] = RunState(**run)
     sim = out["sim"]

@@ -11,10 +11,14 @@ Typical use::
     sim.run(10_000)
     print(sim.top_pressure(), sim.energy())
 
-Order of one step (spec 5.11 without bonds and breakage): kick + drift + plate contacts,
-every ``rebuild_check_interval`` steps a host check of the device flags (guards and the
-Verlet rebuild trigger), pair contacts. The time step is ``timestep_fraction`` x the Rayleigh
-time of the smallest particle (``calendaring.timestep``), fixed when the run starts.
+Order of one step (spec 5.11): kick + drift + plate contacts, every
+``rebuild_check_interval`` steps a host check of the device flags (guards and the Verlet
+rebuild trigger), pair contacts, bonds, then breakage (stressing energy, events, damage; when
+some particle breaks, its replacement by fragments, a neighbour rebuild and the forces of the
+step recomputed, see :mod:`calendaring.breakage_kernels`). The time step is
+``timestep_fraction`` x the Rayleigh time of the smallest particle (``calendaring.timestep``),
+and with breakage at most ``breakage.fragment_timestep_fraction`` x the Rayleigh time of the
+smallest fragment; it is fixed when the run starts.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from calendaring.errors import ConfigError, SimulationError
 from calendaring.forces import GUARD_NAMES, GUARD_SKIN, LEDGER, TRACE_LEN, Kernels
 from calendaring.neighbours import CellGrid
 from calendaring.state import ParticlePool
-from calendaring.timestep import critical_timestep
+from calendaring.timestep import critical_timestep, rayleigh_time
 
 
 class Simulation:
@@ -73,6 +77,15 @@ class Simulation:
         self._trace_z = np.zeros(TRACE_LEN)
         self._trace_steps = np.zeros(TRACE_LEN, np.int64)
         self._traced: list[np.ndarray] = []
+        self.breakage_on = bool(cfg.breakage.enabled and any(
+            m.breakable for m in cfg.materials.values()))
+        self.breakage = None  # BreakageKernels, made at prime() (scratch sized from the bed)
+        self._breakage_dmax = 0.0
+        self._fracture_init_upto = 0  # slots whose fracture energy has been drawn
+        self.breakage_ledger = 0.0  # stored energy removed by particle replacements [J]
+        self.n_breakage_events = 0
+        self._break_log: list[dict] = []
+        self.breakage_active = True  # False: stressing energy is not evaluated (no breakage)
 
     # ------------------------------------------------------------------ set-up
     def add_particles(self, position, radius, material, velocity=None,
@@ -138,9 +151,16 @@ class Simulation:
         arr = self.pool.to_numpy(("radius", "material", "alive"))
         live = arr["alive"] == 1
         mats = [self.cfg.materials[n] for n in self.material_names]
-        return critical_timestep(arr["radius"][live], arr["material"][live], mats,
-                                 self.cfg.numerics.timestep_fraction,
-                                 self.cfg.numerics.density_scaling, self.min_radius)
+        dt = critical_timestep(arr["radius"][live], arr["material"][live], mats,
+                               self.cfg.numerics.timestep_fraction,
+                               self.cfg.numerics.density_scaling, self.min_radius)
+        if self.breakage_on:
+            b = self.cfg.breakage
+            for mat in mats:
+                if mat.breakable:
+                    dt = min(dt, b.fragment_timestep_fraction * rayleigh_time(
+                        0.5 * b.min_fragment_diameter, mat, self.cfg.numerics.density_scaling))
+        return dt
 
     # ------------------------------------------------------------------ neighbour list
     def _ensure_grid(self) -> None:
@@ -149,8 +169,8 @@ class Simulation:
             cutoff = 2.0 * self._r_max + self.cfg.numerics.skin
             self.grid = CellGrid(self.pool.capacity, d.cell_x, d.cell_y, self.z_bottom,
                                  self.z_bottom + d.height, cutoff)
-        if self.table is None:
-            cap = max(64, self.cfg.numerics.pairs_per_particle * self.pool.capacity)
+        if self.table is None:  # sized for the particles present; grows when needed
+            cap = max(64, self.cfg.numerics.pairs_per_particle * max(1, self.pool.n_alive()))
             self.table = ContactTable(self.pool.capacity, cap)
 
     def rebuild(self) -> None:
@@ -188,10 +208,102 @@ class Simulation:
             d = self.cfg.domain
             self.bonds.update(self.pool, dt, d.cell_x, d.cell_y, self.step_count)
 
+    def _ensure_breakage(self) -> None:
+        """Breakage kernels sized for the largest breakable particle; fracture energies of
+        the particles added since the last call."""
+        from calendaring.breakage_kernels import BreakageKernels
+
+        if not self.breakage_on:
+            return
+        arr = self.pool.to_numpy(("radius", "material", "alive"))
+        brk = np.array([self.cfg.materials[n].breakable for n in self.material_names])
+        sel = (arr["alive"] == 1) & brk[arr["material"]]
+        d_max = float(2 * arr["radius"][sel].max()) if sel.any() else 0.0
+        if self.breakage is None or d_max > self._breakage_dmax:
+            if self.breakage is not None:
+                self.breakage.destroy()
+            self.breakage = BreakageKernels(self.cfg, d_max)
+            self._breakage_dmax = d_max
+        if self._fracture_init_upto < self.pool.slots_used:
+            self.breakage.init_particles(self.pool, self._fracture_init_upto)
+            self._fracture_init_upto = self.pool.slots_used
+
+    def _breakage_step(self) -> None:
+        n = self.breakage.events(self.pool)
+        if n > 0:
+            self._replace(n)
+
+    def _stored_energy(self) -> tuple[float, float]:
+        """(kinetic + rotational + gravity + contact elastic, contact elastic) [J]; the bonds
+        of a broken particle book their energy as ``bond_released`` themselves."""
+        ek, er, eg, ee = self.kernels.energies(self.pool, self.table, self.grid, self.dt,
+                                               self.gravity, self.z_bottom,
+                                               self.z_top).to_numpy()
+        return float(ek + er + eg + ee), float(ee)
+
+    def _replace(self, n: int) -> None:
+        """Replace the ``n`` parents flagged this step by their fragments."""
+        from calendaring.forces import L_HYST
+
+        track = self.cfg.numerics.track_energy
+        if track:
+            before, ee_before = self._stored_energy()
+        d = self.cfg.domain
+        self.breakage.replace(self.pool, self.grid, n, self.step_count, self.z_bottom, self.z_top,
+                              d.cell_x, d.cell_y)
+        if int(self.breakage.frag_overflow[None]):
+            raise SimulationError(f"step {self.step_count}: more fragments than the scratch "
+                                  f"size {self.breakage.max_frag} (internal sizing error)",
+                                  step=self.step_count)
+        self.pool.check_overflow(f" while {n} particle(s) broke at step {self.step_count} "
+                                 "(raise breakage.pool_capacity)")
+        rec = self.breakage.records(n)
+        rec["step"] = self.step_count
+        rec["time"] = self.time
+        rec["z_top"] = self.z_top
+        self._break_log.append(rec)
+        self.n_breakage_events += n
+        self._fracture_init_upto = self.pool.slots_used
+        self.kernels.end_dead_contacts(self.pool, self.table)
+        self.rebuild()
+        self.breakage.init_new_contacts(self.pool, self.table, self.grid, self.step_count)
+        self._recompute_forces()
+        if track:
+            after, ee_after = self._stored_energy()
+            self.breakage_ledger += before - after
+            # the plastic work done so far is unchanged by the replacement
+            self.kernels.ledger[L_HYST] += ee_after - ee_before
+
+    def _recompute_forces(self) -> None:
+        """Forces of the current step again at the same positions (after a replacement)."""
+        d = self.cfg.domain
+        slot = self._trace_n - 1 if self._trace_n > 0 else 0
+        self.kernels.advance(self.pool, 0.0, 0.0, self.dt, self.gravity, self.z_bottom,
+                             self.z_top, self.v_top, d.cell_x, d.cell_y,
+                             0.5 * self.cfg.numerics.skin, self.step_count, slot)
+        if self._trace_n == 0 and self._traced:  # this step's row went to the host already
+            self._traced[-1][-1, 2:] = self.kernels.trace.to_numpy()[0]
+        self._pairs(0.0)
+
+    def start_breakage(self) -> None:
+        """Switch breakage on with a clean slate: stressing work, events and peak loads of
+        the history so far are discarded (fracture energies are kept)."""
+        if not self._primed:
+            self.prime()
+        if self.breakage is not None:
+            self.breakage.reset_events(self.pool)
+        self.breakage_active = True
+
+    def take_breakage(self) -> list[dict]:
+        """Breakage records since the last call (one dict of arrays per breaking step)."""
+        out, self._break_log = self._break_log, []
+        return out
+
     def prime(self) -> None:
         """Compute dt, build the neighbour list and the forces at the current state."""
         if self.pool.n_alive() == 0:
             raise SimulationError("no particles: add particles before running")
+        self._ensure_breakage()
         self.dt = self.compute_timestep()
         self._ensure_grid()
         self.rebuild()
@@ -228,6 +340,8 @@ class Simulation:
                 if self.kernels.need_rebuild[None]:
                     self.rebuild()
             self._pairs(self.dt)
+            if self.breakage is not None and self.breakage_active:
+                self._breakage_step()
             if callback is not None and callback_interval and self.step_count % callback_interval == 0:
                 callback(self)
         self.check()
@@ -337,16 +451,18 @@ class Simulation:
         out["plastic"] = led["hysteretic_work"] - ee
         out["bond_elastic"] = self.bonds.stored_energy() if self.bonds is not None else 0.0
         out["bond_released"] = float(self.bonds.released[None]) if self.bonds is not None else 0.0
+        out["breakage"] = self.breakage_ledger
         out["total"] = (ek + er + eg + ee + led["damping_normal"] + led["damping_tangential"]
                         + led["friction"] + led["rolling"] + out["plastic"] - led["plate_work"]
-                        + out["bond_elastic"] + out["bond_released"])
+                        + out["bond_elastic"] + out["bond_released"] + out["breakage"])
         return out
 
     def state(self) -> dict[str, np.ndarray]:
         """Live particles as NumPy arrays (velocities synchronised to the current step)."""
         names = ("pid", "alive", "material", "radius", "mass", "position", "velocity",
                  "angular_velocity", "force", "torque", "inv_mass", "inv_inertia",
-                 "normal_force_sum", "n_contacts", "parent_id")
+                 "normal_force_sum", "n_contacts", "parent_id", "fracture_energy",
+                 "peak_load", "damage_events")
         a = self.pool.to_numpy(names)
         live = a.pop("alive") == 1
         a = {k: v[live] for k, v in a.items()}
@@ -359,7 +475,9 @@ class Simulation:
 
     # ------------------------------------------------------------------ checkpoints
     _HOST_STATE = ("z_bottom", "z_top", "v_top", "dt", "step_count", "time", "_primed",
-                   "_first_kick", "_r_max", "n_rebuilds", "gravity", "check_interval")
+                   "_first_kick", "_r_max", "n_rebuilds", "gravity", "check_interval",
+                   "_fracture_init_upto", "breakage_ledger", "n_breakage_events",
+                   "breakage_active")
 
     def save_state(self) -> dict:
         """Everything needed to continue this run bit for bit (host copies, no side effects).
@@ -367,7 +485,7 @@ class Simulation:
         Keys: ``host`` (scalars), ``pool``, ``table``, ``bonds`` (or None), ``ledger``,
         ``schedule`` (or None) and ``trace`` (unread per-step plate records).
         """
-        from calendaring.contacts import PAIR_F64
+        from calendaring.contacts import PAIR_F64, PAIR_I32
         from calendaring.state import SCALAR_FIELDS, VEC_FIELDS
 
         if self.grid is None or self.table is None:
@@ -379,11 +497,13 @@ class Simulation:
         t = self.table
         table = {name: getattr(t, name).to_numpy() for name in
                  ("owner", "partner", "partner_id", "spring", "seg_start", "seg_count",
-                  *PAIR_F64)}
+                  *PAIR_F64, *PAIR_I32)}
         table["n_pairs"] = int(t.n_pairs[None])
         table["capacity"] = t.capacity
         host = {k: getattr(self, k) for k in self._HOST_STATE}
         self._flush_trace()
+        if self._break_log:
+            raise SimulationError("save_state: take_breakage() the pending breakage records first")
         return {
             "host": host, "pool": pool, "table": table,
             "bonds": self.bonds.to_numpy() if self.bonds is not None else None,
@@ -436,10 +556,14 @@ class Simulation:
             self.bonds.load(state["bonds"])
         self._trace_n = 0
         self._traced = [np.asarray(state["trace"])] if len(state["trace"]) else []
+        if self.breakage_on:  # scratch kernels only; the per-particle state is in the pool
+            upto = self._fracture_init_upto
+            self._ensure_breakage()
+            self._fracture_init_upto = upto
 
     def destroy(self) -> None:
         """Free every device allocation of this simulation."""
-        for obj in (self.pool, self.kernels, self.grid, self.table, self.bonds):
+        for obj in (self.pool, self.kernels, self.grid, self.table, self.bonds, self.breakage):
             if obj is not None:
                 obj.destroy()
-        self.grid = self.table = self.bonds = None
+        self.grid = self.table = self.bonds = self.breakage = None

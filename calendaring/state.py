@@ -27,6 +27,7 @@ SCALAR_FIELDS = {
     "material": ti.i32,
     "pid": ti.i64,  # stable unique id
     "parent_id": ti.i64,  # id of the particle this one broke from (-1 for originals)
+    "root_id": ti.i64,  # id of the original particle this one descends from (itself if original)
     "radius": ti.f64,
     "mass": ti.f64,
     "inv_mass": ti.f64,
@@ -40,6 +41,20 @@ SCALAR_FIELDS = {
     "wall_delta_prev_top": ti.f64,
     "wall_fhys_prev_bottom": ti.f64,
     "wall_fhys_prev_top": ti.f64,
+    # breakage (spec 5.4-5.6); specific energies per unit of true (unscaled) mass
+    "fracture_energy": ti.f64,  # current (damaged) fracture energy E'_f [J/kg]
+    "stress_sum": ti.f64,  # sum over particle contacts of e_i W_c this step [J]
+    "stress_bank": ti.f64,  # shares of contacts that ended during the open event [J]
+    "wall_work_bottom": ti.f64,  # stressing work of the bottom-plate contact this event [J]
+    "wall_work_top": ti.f64,  # stressing work of the top-plate contact this event [J]
+    "event_max": ti.f64,  # largest specific stressing energy of the open event [J/kg]
+    "peak_load": ti.f64,  # largest total contact normal force over the particle's life [N]
+    "event_open": ti.i32,  # a loading event is open
+    "event_quiet": ti.i32,  # steps since a contact of the open event last loaded
+    "event_id": ti.i32,  # events closed so far (contact work of older events is stale)
+    "loading": ti.i32,  # some contact of the particle loaded this step
+    "damage_events": ti.i32,  # events that damaged the particle
+    "birth_step": ti.i32,  # step at which a fragment was created (-1 for originals)
 }
 
 
@@ -144,13 +159,14 @@ class ParticlePool:
         n = self.slots_used
         return {name: getattr(self, name).to_numpy()[:n] for name in names}
 
-    def check_overflow(self) -> None:
+    def check_overflow(self, context: str = "") -> None:
         """Raise if a device-side allocation ran past the capacity."""
         over = int(self.overflow[None])
         if over:
             raise SimulationError(
                 f"particle pool full: device insertion asked for {over} slot(s) beyond the "
-                f"capacity {self.capacity}; no particle was dropped silently, the run stops"
+                f"capacity {self.capacity}{context}; no particle was dropped silently, the "
+                "run stops"
             )
 
     # ------------------------------------------------------------------ kernels
@@ -164,6 +180,7 @@ class ParticlePool:
             self.alive[i] = 1
             self.pid[i] = first_id + k
             self.parent_id[i] = parent[k]
+            self.root_id[i] = first_id + k
             self.material[i] = mat[k]
             self.radius[i] = rad[k]
             self.mass[i] = mass[k]
@@ -184,6 +201,7 @@ class ParticlePool:
             self.wall_delta_prev_top[i] = 0.0
             self.wall_fhys_prev_bottom[i] = 0.0
             self.wall_fhys_prev_top[i] = 0.0
+            self.birth_step[i] = -1
         self.n_slots[None] = start + rad.shape[0]
         self.next_id[None] = first_id + rad.shape[0]
 

@@ -88,11 +88,71 @@ def test_snapshot_porosity_is_mass_balance_and_no_particle_is_lost(tiny_run):
         assert h == pytest.approx(h0 - snap.depth, rel=1e-9)
         expected = 1 - (1 - phi0) * h0 / h
         assert abs(snap.porosity(rec.cell_x, rec.cell_y) - expected) < 0.01
-        assert sorted(snap.id.tolist()) == sorted(first.id.tolist())
         inside = (snap.position[:, 2] > snap.z_bottom) & (snap.position[:, 2] < snap.z_top)
         assert inside.all()
     counts = rec.info["build"]["counts"]
     assert len(first.id) == counts["AM"] + counts["CB"]
+
+
+def test_breakage_keeps_every_particle_and_the_active_material_volume(tiny_run):
+    rec = read_run(tiny_run)
+    b = rec.breakage
+    assert rec.breakage_model == "tavares_ufrj" and len(b["parent_id"]) > 0
+    first = rec.snapshots[0]
+    am0 = np.sum(first.radius[first.material == 0] ** 3)
+    frag = b["fragments"]
+    for snap in rec.snapshots:
+        done = b["step"] <= snap.step  # events before this snapshot
+        born = set(frag["id"][np.isin(frag["event"], np.nonzero(done)[0])].tolist())
+        alive = (set(first.id.tolist()) | born) - set(b["parent_id"][done].tolist())
+        assert set(snap.id.tolist()) == alive  # no particle lost, none duplicated
+        am = np.sum(snap.radius[snap.material == 0] ** 3)
+        assert abs(am / am0 - 1) < 1e-9  # T18: the active material volume is conserved
+        kids = snap.parent_id >= 0
+        assert set(snap.parent_id[kids].tolist()) <= set(b["parent_id"].tolist())
+    assert rec.series["particles"][-1] == len(rec.snapshots[-1].id)
+    assert rec.series["breakage_events"][-1] == len(b["parent_id"])
+
+
+def test_breakage_records_follow_the_model(tiny_run):
+    from calendaring import breakage as bk
+    from calendaring.runfile import BREAKAGE, FRAGMENTS
+
+    rec = read_run(tiny_run)
+    with h5py.File(tiny_run) as f:
+        for name, (unit, _) in BREAKAGE.items():
+            assert f[f"breakage/{name}"].attrs["unit"] == unit
+        for name, (unit, _) in FRAGMENTS.items():
+            assert f[f"breakage/fragments/{name}"].attrs["unit"] == unit
+    b, cfg = rec.breakage, rec.config.breakage
+    e50 = bk.e50(b["diameter"], rec.config.materials["AM"], cfg)
+    assert b["e50"] == pytest.approx(e50, rel=1e-12)
+    assert np.all(b["stressing_energy"] >= b["fracture_energy"])
+    assert np.all(b["fracture_energy"] < bk.truncation_factor(cfg) * e50)
+    assert b["t10"] == pytest.approx(bk.t10(b["stressing_energy"], e50, cfg), rel=1e-12)
+    assert np.all(b["peak_load"] > 0) and np.all(b["diameter"] >= cfg.min_breakable_diameter)
+    assert np.all(np.diff(b["depth"]) >= 0) and np.all(b["depth"] <= rec.stroke + 1e-12)
+    frag = b["fragments"]
+    assert len(frag["id"]) == b["n_fragments"].sum() and len(np.unique(frag["id"])) == len(frag["id"])
+    for k in range(len(b["parent_id"])):
+        d = frag["diameter"][frag["event"] == k]
+        assert len(d) == b["n_fragments"][k] >= 2
+        assert abs(np.sum(d**3) / b["diameter"][k] ** 3 - 1) < 1e-12
+        assert np.all(d >= cfg.min_fragment_diameter * (1 - 1e-9)) or len(d) == 2
+
+
+def test_no_breakage_control_starts_from_the_same_packing_and_seed(tiny_run, tmp_path):
+    out = tmp_path / "r0.h5"
+    res = _cli("run", *RUN_ARGS, "--no-breakage", "--out", str(out), "--quiet")
+    assert res.returncode == 0, res.stderr[-3000:]
+    r0, r1 = read_run(out), read_run(tiny_run)
+    assert r0.breakage_model == "none" and len(r0.breakage["parent_id"]) == 0
+    assert not r0.config.breakage.enabled and r0.seed == r1.seed
+    np.testing.assert_array_equal(r0.snapshots[0].position, r1.snapshots[0].position)
+    np.testing.assert_array_equal(r0.snapshots[0].radius, r1.snapshots[0].radius)
+    assert len(r0.snapshots[-1].id) == len(r0.snapshots[0].id)
+    # breakage relieves the load: the broken bed carries less at full stroke
+    assert r1.pressure["value"][-1] < r0.pressure["value"][-1]
 
 
 def test_bond_rules_hold_through_the_run(tiny_run):
@@ -116,7 +176,7 @@ def test_bond_rules_hold_through_the_run(tiny_run):
     intact = rec.series["bonds_intact"]
     assert np.all(np.diff(intact) <= 0)
     failed = rec.series["bonds_failed_normal"] + rec.series["bonds_failed_shear"]
-    assert np.all(intact + failed == rec.info["bonds_created"])
+    assert np.all(intact + failed + rec.series["bonds_removed"] == rec.info["bonds_created"])
     assert failed[-1] > 0  # calendering breaks bonds
 
 
@@ -158,6 +218,10 @@ def test_resume_after_sigkill_gives_the_uninterrupted_result(tiny_run, tmp_path)
     for key in SERIES_UNITS:
         np.testing.assert_array_equal(a.series[key], b.series[key])
     assert len(a.snapshots) == len(b.snapshots)
+    for key in ("parent_id", "stressing_energy", "step", "peak_load"):
+        np.testing.assert_array_equal(a.breakage[key], b.breakage[key])
+    np.testing.assert_array_equal(a.breakage["fragments"]["diameter"],
+                                  b.breakage["fragments"]["diameter"])
     for sa, sb in zip(a.snapshots, b.snapshots, strict=True):
         np.testing.assert_array_equal(sa.position, sb.position)
         np.testing.assert_array_equal(sa.normal_force, sb.normal_force)
