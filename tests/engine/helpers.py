@@ -8,7 +8,8 @@ from calendaring.simulation import Simulation
 
 def frictionless_pair(restitution=0.5, plasticity=0.0, friction=0.0, rolling=0.0,
                       exponent=1.5, fraction=0.01, gravity=0.0, **numerics):
-    """Config where every pair and particle-plate contact has the given parameters."""
+    """Config where every pair and particle-plate contact has the given parameters
+    (breakage off: these tests are about the contact engine)."""
     pair = {"plasticity_ratio": plasticity, "surface_energy": 0.0, "restitution": restitution,
             "friction": friction, "rolling_friction": rolling}
     return load_config_dict({
@@ -17,6 +18,7 @@ def frictionless_pair(restitution=0.5, plasticity=0.0, friction=0.0, rolling=0.0
                     "pairs": {"AM-AM": pair, "AM-CB": pair, "CB-CB": pair},
                     "plate_pairs": {"AM": pair, "CB": pair}},
         "numerics": {"timestep_fraction": fraction, **numerics},
+        "breakage": {"enabled": False},
     })
 
 
