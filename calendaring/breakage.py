@@ -24,8 +24,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import ndtri
-from scipy.stats import norm
+from scipy.special import ndtr, ndtri
 
 from calendaring.config import BreakageConfig, MaterialConfig, SimConfig
 from calendaring.contact_params import plane_strain_modulus
@@ -64,7 +63,7 @@ def fracture_energy_cdf(energy, e50_value, factor: float, sigma: float):
     with np.errstate(divide="ignore", invalid="ignore"):
         e_star = np.where(np.isinf(e_max), e, e_max * e / (e_max - e))
         z = (np.log(e_star) - np.log(e50_value)) / sigma
-    out = norm.cdf(z)
+    out = ndtr(z)
     out = np.where(e <= 0, 0.0, out)
     return np.where(np.isfinite(e_max) & (e >= e_max), 1.0, out)
 
@@ -129,6 +128,11 @@ def breakable_mask(cfg: SimConfig) -> np.ndarray:
     return np.array([cfg.materials[n].breakable for n in cfg.material_names], bool)
 
 
-__all__ = ["TN_SIZES", "breakable_mask", "damage", "device_factor", "e50",
+def breakage_enabled(cfg: SimConfig) -> bool:
+    """Breakage is switched on and some material can break."""
+    return bool(cfg.breakage.enabled and breakable_mask(cfg).any())
+
+
+__all__ = ["TN_SIZES", "breakable_mask", "breakage_enabled", "damage", "device_factor", "e50",
            "fracture_energy_cdf", "fracture_energy_median", "max_fragments", "t10", "tn",
            "truncation_factor", "worst_case_slots"]

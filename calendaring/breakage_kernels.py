@@ -29,11 +29,16 @@ import math
 import numpy as np
 import taichi as ti
 
-from calendaring.breakage import TN_SIZES, device_factor, max_fragments, truncation_factor
+from calendaring.breakage import (
+    TN_SIZES,
+    breakable_mask,
+    device_factor,
+    max_fragments,
+    truncation_factor,
+)
 from calendaring.config import SimConfig
-from calendaring.contact_params import COL
 
-_KNOTS = (1,) + TN_SIZES  # n of the t_n knots: x = 1/n
+_KNOTS = (1, *TN_SIZES)  # n of the t_n knots: x = 1/n
 _NK = len(_KNOTS)
 _BINARY = 2.0 ** (-1.0 / 3.0)  # relative diameter of the two halves of a binary split
 _MAX_NEIGHBOURS = 64  # touching neighbours of a parent that fragment placement avoids
@@ -55,7 +60,6 @@ class BreakageKernels:
     def __init__(self, cfg: SimConfig, d_parent_max: float) -> None:
         b = cfg.breakage
         names = cfg.material_names
-        self.cfg = b
         self.n_mat = len(names)
         self.gamma = float(b.damage_constant)
         self.d0 = float(b.d0)
@@ -114,7 +118,7 @@ class BreakageKernels:
         fb.place(self.n_break, self.n_deferred, self.n_fragments, self.frag_overflow, self.ok)
         self._tree = fb.finalize()
         mats = [cfg.materials[n] for n in names]
-        self.breakable.from_numpy(np.array([m.breakable for m in mats], np.int32))
+        self.breakable.from_numpy(breakable_mask(cfg).astype(np.int32))
         self.e50_scale.from_numpy(np.array([b.e_inf * device_factor(m, b) for m in mats]))
 
     def destroy(self) -> None:
@@ -310,9 +314,11 @@ class BreakageKernels:
                 cand = self._in_ball(key, 8 * (f * n_cand + m) + 2, r_parent - rf)
                 worst = ti.max(rf - (cand[2] - z_lo), rf - (z_hi - cand[2]))
                 for g in range(f):
-                    worst = ti.max(worst, rf + self.frag_r[k, g] - (cand - self.frag_c[k, g]).norm())
+                    worst = ti.max(worst,
+                                   rf + self.frag_r[k, g] - (cand - self.frag_c[k, g]).norm())
                 for q in range(self.nb_n[k]):
-                    worst = ti.max(worst, rf + self.nb_r[k, q] - (cand - self.nb_c[k, q]).norm())
+                    worst = ti.max(worst,
+                                   rf + self.nb_r[k, q] - (cand - self.nb_c[k, q]).norm())
                 if worst < best:
                     best = worst
                     best_c = cand
@@ -516,7 +522,6 @@ class BreakageKernels:
         v_p = pool.velocity[p]
         w_p = pool.angular_velocity[p]
         mat = pool.material[p]
-        zero = ti.Vector([0.0, 0.0, 0.0])
         for f in range(count):
             s = self.brk_first[k] + f
             r = self.frag_r[k, f]
@@ -539,27 +544,16 @@ class BreakageKernels:
             pool.position[s] = x
             pool.velocity[s] = v_p + w_p.cross(c)
             pool.angular_velocity[s] = w_p
-            pool.force[s] = zero
-            pool.torque[s] = zero
-            pool.displacement[s] = zero
-            pool.wall_spring_bottom[s] = zero
-            pool.wall_spring_top[s] = zero
-            pool.wall_delta_max_bottom[s] = 0.0
-            pool.wall_delta_max_top[s] = 0.0
+            pool.clear_contact_state(s)
             # a fragment born touching a plate starts that contact without stressing work
             pool.wall_delta_prev_bottom[s] = ti.max(0.0, r - (x[2] - z_bottom))
             pool.wall_delta_prev_top[s] = ti.max(0.0, r - (z_top - x[2]))
-            pool.wall_fhys_prev_bottom[s] = 0.0
-            pool.wall_fhys_prev_top[s] = 0.0
             pool.fracture_energy[s] = self.fracture_energy(self.e50(mat, 2.0 * r), new_id)
             self._clear_events(pool, s)
             pool.event_id[s] = 0
             pool.loading[s] = 0
             pool.damage_events[s] = 0
             pool.birth_step[s] = step
-            pool.roll_magnitude[s] = 0.0
-            pool.normal_force_sum[s] = 0.0
-            pool.n_contacts[s] = 0
         pool.alive[p] = 0
 
     @ti.kernel

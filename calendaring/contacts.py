@@ -9,7 +9,8 @@ by the work integrals, and the breakage bookkeeping: the stressing work of the c
 side since that particle's current loading event began, ``work_a`` / ``work_b`` with the
 event numbers ``event_a`` / ``event_b`` they belong to, and for fragments of one particle
 born overlapping the reference overlap ``delta_ref`` the contact law is measured from, with
-the ``sibling`` flag that switches adhesion off until they separate) is keyed by the stable ids: after a rebuild each new pair (i, j) looks for the old entry with
+the ``sibling`` flag that switches adhesion off until they separate) is keyed by the stable
+ids: after a rebuild each new pair (i, j) looks for the old entry with
 the same partner id in i's old segment (a linear scan over at most a few entries) and copies
 it, or starts from zero. A pair whose overlap becomes <= 0 has its history cleared by the
 force kernel (the contact ended).

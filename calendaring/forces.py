@@ -17,6 +17,7 @@ synchronised v_n = v_{n-1/2} + dt/2 a_n.
 import numpy as np
 import taichi as ti
 
+from calendaring.breakage import breakable_mask, breakage_enabled
 from calendaring.config import SimConfig
 from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
 from calendaring.laws.eepa import (
@@ -73,8 +74,7 @@ class Kernels:
         self.track_energy = bool(cfg.numerics.track_energy)
         # stressing-work bookkeeping of the breakage model (spec 5.4), compiled in only when
         # some material can break
-        self.breakage = bool(cfg.breakage.enabled and any(
-            m.breakable for m in cfg.materials.values()))
+        self.breakage = breakage_enabled(cfg)
         self.shear_weight = float(cfg.breakage.shear_weight)
         self.n_mat = len(cfg.materials)
         ncol = len(COLUMNS)
@@ -101,8 +101,7 @@ class Kernels:
                  self.guard_value, self.need_rebuild)
         self._tree = fb.finalize()
         self.pair.from_numpy(pair_table(cfg))
-        self.breakable.from_numpy(np.array([m.breakable for m in cfg.materials.values()],
-                                           np.int32))
+        self.breakable.from_numpy(breakable_mask(cfg).astype(np.int32))
         self.plate.from_numpy(plate_table(cfg))
 
     def destroy(self) -> None:
@@ -410,37 +409,42 @@ class Kernels:
                      loading):
         """Add a contact's stressing work to each breakable side's event and E_k (spec 5.4)."""
         if self.breakable[a]:
-            ev_i = pool.event_id[i]
-            if table.event_a[c] != ev_i:  # the owner closed an event since: start afresh
-                table.event_a[c] = ev_i
-                table.work_a[c] = 0.0
-            wa = table.work_a[c] + work
-            table.work_a[c] = wa
-            pool.stress_sum[i] += self.pair[a, b, COL["stiffness_partition"]] * wa
-            if loading:
-                pool.loading[i] = 1
+            self._side_work(pool, table.event_a, table.work_a, c, i,
+                            self.pair[a, b, COL["stiffness_partition"]], work, loading)
         if self.breakable[b]:
-            ev_j = pool.event_id[j]
-            if table.event_b[c] != ev_j:
-                table.event_b[c] = ev_j
-                table.work_b[c] = 0.0
-            wb = table.work_b[c] + work
-            table.work_b[c] = wb
-            pool.stress_sum[j] += self.pair[b, a, COL["stiffness_partition"]] * wb
-            if loading:
-                pool.loading[j] = 1
+            self._side_work(pool, table.event_b, table.work_b, c, j,
+                            self.pair[b, a, COL["stiffness_partition"]], work, loading)
+
+    @ti.func
+    def _side_work(self, pool: ti.template(), event_f: ti.template(), work_f: ti.template(), c,
+                   i, share, work, loading):
+        """One side of :meth:`_stress_work`: particle i with its share of the contact work."""
+        ev = pool.event_id[i]
+        if event_f[c] != ev:  # the particle closed an event since: start afresh
+            event_f[c] = ev
+            work_f[c] = 0.0
+        w = work_f[c] + work
+        work_f[c] = w
+        pool.stress_sum[i] += share * w
+        if loading:
+            pool.loading[i] = 1
 
     @ti.func
     def _bank(self, pool: ti.template(), table: ti.template(), c, i, j):
         """A contact ends: the open events of its particles keep their shares (spec 5.4)."""
         a = pool.material[i]
         b = pool.material[j]
-        if pool.alive[i] and pool.event_open[i] and table.event_a[c] == pool.event_id[i]:
-            pool.stress_bank[i] += self.pair[a, b, COL["stiffness_partition"]] * table.work_a[c]
-        if pool.alive[j] and pool.event_open[j] and table.event_b[c] == pool.event_id[j]:
-            pool.stress_bank[j] += self.pair[b, a, COL["stiffness_partition"]] * table.work_b[c]
-        table.work_a[c] = 0.0
-        table.work_b[c] = 0.0
+        self._bank_side(pool, table.event_a, table.work_a, c, i,
+                        self.pair[a, b, COL["stiffness_partition"]])
+        self._bank_side(pool, table.event_b, table.work_b, c, j,
+                        self.pair[b, a, COL["stiffness_partition"]])
+
+    @ti.func
+    def _bank_side(self, pool: ti.template(), event_f: ti.template(), work_f: ti.template(), c,
+                   i, share):
+        if pool.alive[i] and pool.event_open[i] and event_f[c] == pool.event_id[i]:
+            pool.stress_bank[i] += share * work_f[c]
+        work_f[c] = 0.0
 
     @ti.kernel
     def end_dead_contacts(self, pool: ti.template(), table: ti.template()):

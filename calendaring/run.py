@@ -515,8 +515,8 @@ class CalenderRun:
         self._take_breakage()
         rows = np.array(rs.breakage, float).reshape(-1, len(BREAKAGE_COLUMNS))
         brk = {k: rows[:, i] for i, k in enumerate(BREAKAGE_COLUMNS)}
-        for k in ("parent_id", "n_fragments", "first_fragment_id", "step"):
-            brk[k] = np.array([r[BREAKAGE_COLUMNS.index(k)] for r in rs.breakage], np.int64)
+        for k in ("parent_id", "n_fragments", "first_fragment_id", "step"):  # exact in f64
+            brk[k] = brk[k].astype(np.int64)
         n_frag = brk["n_fragments"]
         brk["fragments"] = {
             "id": np.concatenate([f + np.arange(n, dtype=np.int64) for f, n in
@@ -546,18 +546,18 @@ def pool_capacity(cfg: SimConfig, radius: np.ndarray, material: np.ndarray) -> i
     """Particle slots for a run: the particles, plus every fragment that can ever exist
     when breakage is on (``breakage.pool_capacity``, or the worst case of
     :func:`calendaring.breakage.worst_case_slots`)."""
-    from calendaring.breakage import breakable_mask, worst_case_slots
+    from calendaring.breakage import breakable_mask, breakage_enabled, worst_case_slots
 
     n = len(radius)
-    brk = breakable_mask(cfg)
-    if not (cfg.breakage.enabled and brk.any()):
+    if not breakage_enabled(cfg):
         return n
     if cfg.breakage.pool_capacity:
         if cfg.breakage.pool_capacity < n:
             raise ConfigError("breakage.pool_capacity", cfg.breakage.pool_capacity,
                               f"0 (worst case) or >= the {n} particles of the bed")
         return cfg.breakage.pool_capacity
-    return worst_case_slots(2 * np.asarray(radius), brk[np.asarray(material)], cfg.breakage)
+    return worst_case_slots(2 * np.asarray(radius), breakable_mask(cfg)[np.asarray(material)],
+                            cfg.breakage)
 
 
 def _block_mean(trace: np.ndarray, stride: int) -> np.ndarray:
@@ -579,4 +579,5 @@ def run(cfg: SimConfig, out: str | Path, resume: bool = False, progress: bool = 
     return CalenderRun(cfg, out, progress=progress, preset=preset).execute(resume=resume)
 
 
-__all__ = ["BREAKAGE_COLUMNS", "STAGES", "SERIES", "CalenderRun", "pool_capacity", "Progress", "mean_grain", "plate_speed", "run"]
+__all__ = ["BREAKAGE_COLUMNS", "SERIES", "STAGES", "CalenderRun", "Progress", "mean_grain",
+           "plate_speed", "pool_capacity", "run"]

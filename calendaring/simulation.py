@@ -77,8 +77,7 @@ class Simulation:
         self._trace_z = np.zeros(TRACE_LEN)
         self._trace_steps = np.zeros(TRACE_LEN, np.int64)
         self._traced: list[np.ndarray] = []
-        self.breakage_on = bool(cfg.breakage.enabled and any(
-            m.breakable for m in cfg.materials.values()))
+        self.breakage_on = self.kernels.breakage  # breakage.enabled and a breakable material
         self.breakage = None  # BreakageKernels, made at prime() (scratch sized from the bed)
         self._breakage_dmax = 0.0
         self._fracture_init_upto = 0  # slots whose fracture energy has been drawn
@@ -211,13 +210,13 @@ class Simulation:
     def _ensure_breakage(self) -> None:
         """Breakage kernels sized for the largest breakable particle; fracture energies of
         the particles added since the last call."""
+        from calendaring.breakage import breakable_mask
         from calendaring.breakage_kernels import BreakageKernels
 
         if not self.breakage_on:
             return
         arr = self.pool.to_numpy(("radius", "material", "alive"))
-        brk = np.array([self.cfg.materials[n].breakable for n in self.material_names])
-        sel = (arr["alive"] == 1) & brk[arr["material"]]
+        sel = (arr["alive"] == 1) & breakable_mask(self.cfg)[arr["material"]]
         d_max = float(2 * arr["radius"][sel].max()) if sel.any() else 0.0
         if self.breakage is None or d_max > self._breakage_dmax:
             if self.breakage is not None:
@@ -556,10 +555,7 @@ class Simulation:
             self.bonds.load(state["bonds"])
         self._trace_n = 0
         self._traced = [np.asarray(state["trace"])] if len(state["trace"]) else []
-        if self.breakage_on:  # scratch kernels only; the per-particle state is in the pool
-            upto = self._fracture_init_upto
-            self._ensure_breakage()
-            self._fracture_init_upto = upto
+        self._ensure_breakage()  # scratch kernels only; the per-particle state is in the pool
 
     def destroy(self) -> None:
         """Free every device allocation of this simulation."""

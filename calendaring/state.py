@@ -190,20 +190,29 @@ class ParticlePool:
                 self.position[i][d] = pos[k, d]
                 self.velocity[i][d] = vel[k, d]
                 self.angular_velocity[i][d] = om[k, d]
-            self.force[i] = ti.Vector([0.0, 0.0, 0.0])
-            self.torque[i] = ti.Vector([0.0, 0.0, 0.0])
-            self.displacement[i] = ti.Vector([0.0, 0.0, 0.0])
-            self.wall_spring_bottom[i] = ti.Vector([0.0, 0.0, 0.0])
-            self.wall_spring_top[i] = ti.Vector([0.0, 0.0, 0.0])
-            self.wall_delta_max_bottom[i] = 0.0
-            self.wall_delta_max_top[i] = 0.0
-            self.wall_delta_prev_bottom[i] = 0.0
-            self.wall_delta_prev_top[i] = 0.0
-            self.wall_fhys_prev_bottom[i] = 0.0
-            self.wall_fhys_prev_top[i] = 0.0
+            self.clear_contact_state(i)
             self.birth_step[i] = -1
         self.n_slots[None] = start + rad.shape[0]
         self.next_id[None] = first_id + rad.shape[0]
+
+    @ti.func
+    def clear_contact_state(self, i):
+        """A new particle in slot i: no force, no displacement, no plate-contact history."""
+        zero = ti.Vector([0.0, 0.0, 0.0])
+        self.force[i] = zero
+        self.torque[i] = zero
+        self.displacement[i] = zero
+        self.wall_spring_bottom[i] = zero
+        self.wall_spring_top[i] = zero
+        self.wall_delta_max_bottom[i] = 0.0
+        self.wall_delta_max_top[i] = 0.0
+        self.wall_delta_prev_bottom[i] = 0.0
+        self.wall_delta_prev_top[i] = 0.0
+        self.wall_fhys_prev_bottom[i] = 0.0
+        self.wall_fhys_prev_top[i] = 0.0
+        self.roll_magnitude[i] = 0.0
+        self.normal_force_sum[i] = 0.0
+        self.n_contacts[i] = 0
 
     @ti.kernel
     def _kill(self, slots: ti.types.ndarray()):

@@ -133,7 +133,8 @@ def test_breakage_records_follow_the_model(tiny_run):
     assert np.all(b["peak_load"] > 0) and np.all(b["diameter"] >= cfg.min_breakable_diameter)
     assert np.all(np.diff(b["depth"]) >= 0) and np.all(b["depth"] <= rec.stroke + 1e-12)
     frag = b["fragments"]
-    assert len(frag["id"]) == b["n_fragments"].sum() and len(np.unique(frag["id"])) == len(frag["id"])
+    assert len(frag["id"]) == b["n_fragments"].sum()
+    assert len(np.unique(frag["id"])) == len(frag["id"])
     for k in range(len(b["parent_id"])):
         d = frag["diameter"][frag["event"] == k]
         assert len(d) == b["n_fragments"][k] >= 2
