@@ -9,6 +9,9 @@ Exit codes: 0 success, 2 bad input (nothing written), 3 the simulation stopped o
     calendaring inspect runs/quick.h5
     calendaring plot runs/quick.h5
     calendaring export runs/quick.h5 --snapshot 4 --vtk
+    calendaring pack --preset quick --seed 0 --out bed.csv      # settle a bed only
+    calendaring sweep --design lhs --n 280 --preset sweep --out RUNS/
+    calendaring dataset RUNS/ --out data/dataset.h5
 """
 
 from __future__ import annotations
@@ -18,9 +21,11 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from calendaring.config import (
-    PRESETS,
     ARCHES,
+    PRESETS,
     load_config,
     load_preset,
     parse_override,
@@ -44,20 +49,13 @@ def _parser() -> argparse.ArgumentParser:
                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
     r = sub.add_parser("run", help="run a calendering simulation into an HDF5 run file")
-    r.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
-    r.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
-    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value (dotted key, TOML value); repeatable")
+    _config_args(r)
     r.add_argument("--out", required=True, help="run file to write (.h5)")
-    r.add_argument("--arch", choices=[a for a in ARCHES if a != "auto"], help="Taichi backend")
-    r.add_argument("--seed", type=int, help="random seed (numerics.seed)")
-    r.add_argument("--threads", type=int, help="CPU threads (numerics.threads, 0 = all)")
     r.add_argument("--resume", action="store_true", help="continue from <out>.ckpt")
     r.add_argument("--no-breakage", action="store_true",
                    help="the no-breakage control (paper R0): breakage.enabled = false, "
                         "same packing and seed")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run file")
-    r.add_argument("--quiet", action="store_true", help="no progress lines")
     i = sub.add_parser("inspect", help="print a summary of a run file")
     i.add_argument("run_file")
     i.add_argument("--json", action="store_true", help="machine-readable summary")
@@ -72,7 +70,74 @@ def _parser() -> argparse.ArgumentParser:
     fmt.add_argument("--lammps", action="store_true", help="LAMMPS data, atom_style granular")
     fmt.add_argument("--csv", action="store_true", help="calendaring packing CSV")
     e.add_argument("--out", help="output path (default: <run>_snap<k>.<ext>)")
+    k = sub.add_parser("pack", help="insert and settle a bed only, and write it as a packing "
+                                    "CSV (runs start from it with electrode.packing)")
+    _config_args(k)
+    k.add_argument("--out", required=True, help="packing CSV to write")
+    k.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    s = sub.add_parser("sweep", help="many runs over a design of the 8 breakage parameters, "
+                                     "as Dask tasks (resumable)",
+                       description=_sweep_doc(),
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    s.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
+    s.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
+    s.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value for every run; repeatable")
+    s.add_argument("--design", default="lhs",
+                   help="lhs | sobol | reference | centre | DESIGN.csv (default lhs)")
+    s.add_argument("--n", type=int, default=1, help="design points (default 1)")
+    s.add_argument("--seed", type=int, default=0,
+                   help="run seed (bed and fracture energies); replicates use seed+1, ...")
+    s.add_argument("--design-seed", type=int, help="seed of the design (default --seed)")
+    s.add_argument("--replicates", type=int, default=1, help="seeds per design point")
+    s.add_argument("--role", default="train", help="train | replicate | holdout")
+    s.add_argument("--out", required=True, help="sweep folder (created; reused to resume)")
+    s.add_argument("--scheduler", help="address of a running Dask scheduler "
+                                       "(default: a LocalCluster on this machine)")
+    s.add_argument("--workers", type=int, default=0,
+                   help="LocalCluster workers (default: cores / threads per run)")
+    s.add_argument("--threads-per-run", type=int, default=1, help="CPU threads of each run")
+    s.add_argument("--max-attempts", type=int, default=2, help="tries per run (default 2)")
+    s.add_argument("--timeout", type=float, help="seconds per run attempt (default none)")
+    s.add_argument("--gpu", action="store_true",
+                   help="each run needs one 'GPU' worker resource (workers started with "
+                        "--resources GPU=1); set numerics.arch with --set")
+    s.add_argument("--quiet", action="store_true", help="no progress lines")
+    d = sub.add_parser("dataset", help="consolidate a sweep's run files into a training "
+                                       "dataset file")
+    d.add_argument("runs", help="sweep folder (or a folder of run files)")
+    d.add_argument("--out", required=True, help="dataset file to write (.h5)")
+    d.add_argument("--points", type=int, default=196, help="pressure points (default 196)")
+    d.add_argument("--savgol-window", type=int, default=17, help="Savitzky-Golay window")
+    d.add_argument("--savgol-order", type=int, default=3, help="Savitzky-Golay order")
+    d.add_argument("--bins", type=int, default=30, help="histogram bins per axis")
+    d.add_argument("--load-scale", choices=("log", "linear"), default="log",
+                   help="peak-load axis of the histogram (default log)")
+    d.add_argument("--load-range", type=float, nargs=2, metavar=("MIN_N", "MAX_N"),
+                   help="fixed peak-load edges [N] (default: the events' range)")
+    d.add_argument("--diameter-range", type=float, nargs=2, metavar=("MIN_M", "MAX_M"),
+                   help="fixed diameter edges [m] (default: the events' range)")
+    d.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    d.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap
+
+
+def _sweep_doc() -> str:
+    from calendaring import sweep
+
+    return sweep.__doc__.split("Layout")[0]
+
+
+def _config_args(r) -> None:
+    r.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
+    r.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value (dotted key, TOML value); repeatable")
+    r.add_argument("--arch", choices=[a for a in ARCHES if a != "auto"], help="Taichi backend")
+    r.add_argument("--seed", type=int, help="random seed (numerics.seed)")
+    r.add_argument("--threads", type=int, help="CPU threads (numerics.threads, 0 = all)")
+    r.add_argument("--quiet", action="store_true", help="no progress lines")
+    r.set_defaults(no_breakage=False, resume=False)
 
 
 def _run_config(args):
@@ -113,6 +178,84 @@ def cmd_run(args) -> int:
     return EXIT_OK
 
 
+def cmd_pack(args) -> int:
+    cfg = _run_config(args)
+    out = Path(args.out)
+    if out.suffix.lower() != ".csv":
+        raise ConfigError("--out", str(out), "a path ending in .csv")
+    if out.exists() and not args.overwrite:
+        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    from calendaring.run import build_packing
+
+    print(f"wrote {build_packing(cfg, out, progress=not args.quiet)}")
+    return EXIT_OK
+
+
+def cmd_sweep(args) -> int:
+    from calendaring.sweep import SweepOptions, summary, sweep
+
+    if bool(args.config) == bool(args.preset):
+        raise ConfigError("config", args.config or args.preset,
+                          "exactly one of CONFIG.toml or --preset NAME")
+    if args.config and not Path(args.config).is_file():
+        raise ConfigError("config", args.config, "an existing TOML file")
+    for key, v, lo in (("--workers", args.workers, 0), ("--threads-per-run",
+                       args.threads_per_run, 1), ("--max-attempts", args.max_attempts, 1),
+                       ("--replicates", args.replicates, 1)):
+        if v < lo:
+            raise ConfigError(key, v, f">= {lo}")
+    if args.timeout is not None and args.timeout <= 0:
+        raise ConfigError("--timeout", args.timeout, "> 0 s")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError("--out", str(out), "a folder (it is a file)")
+    source = f"preset:{args.preset}" if args.preset else str(Path(args.config).resolve())
+    opt = SweepOptions(source=source, out=out, design=args.design, n=args.n, seed=args.seed,
+                       design_seed=args.design_seed, replicates=args.replicates,
+                       role=args.role, overrides=dict(parse_override(s) for s in args.set),
+                       workers=args.workers, threads_per_run=args.threads_per_run,
+                       scheduler=args.scheduler, max_attempts=args.max_attempts,
+                       timeout=args.timeout, gpu=args.gpu, progress=not args.quiet)
+    runs = sweep(opt)
+    s = summary(runs)
+    print(json.dumps(s))
+    failed = [e for e in runs.values() if e.status == "failed"]
+    for e in failed:
+        print(f"failed: {e.run_id} ({e.attempts} attempts): "
+              f"{e.error.splitlines()[0] if e.error else ''}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_dataset(args) -> int:
+    from calendaring.dataset import build_dataset, write_dataset
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise ConfigError("--out", str(out), "a path ending in .h5 or .hdf5")
+    if out.exists() and not args.overwrite:
+        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    ds = build_dataset(args.runs, n_points=args.points, savgol_window=args.savgol_window,
+                       savgol_order=args.savgol_order, bins=args.bins,
+                       load_scale=args.load_scale,
+                       load_range=tuple(args.load_range) if args.load_range else None,
+                       diameter_range=tuple(args.diameter_range) if args.diameter_range
+                       else None, progress=not args.quiet,
+                       command="calendaring dataset " + " ".join(sys.argv[2:]))
+    write_dataset(out, ds)
+    from calendaring.dataset import noise_floor
+
+    nf = noise_floor(ds)
+    roles = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
+    print(f"wrote {out}: {len(ds)} runs {roles}, {len(ds.skipped)} skipped, "
+          f"{int(ds.n_events.sum())} breakage events")
+    for name, why in ds.skipped:
+        print(f"skipped {name}: {why}", file=sys.stderr)
+    if nf["pressure_mse_normalised"] is not None:
+        print(f"replicate noise floor: pressure MSE {nf['pressure_mse_normalised']:.3g} "
+              f"(normalised), KL to group mean {nf['kl_to_group_mean']:.3g}")
+    return EXIT_OK
+
+
 def summary(rec) -> dict:
     """Key figures of a run (SI)."""
     out = {"file": str(rec.path), "preset": rec.preset, "seed": rec.seed,
@@ -134,9 +277,9 @@ def summary(rec) -> dict:
         out["bonds_intact_final"] = int(s["bonds_intact"][-1])
         out["max_inertial_number_above_reference"] = _max_inertial(rec)
     out["snapshots"] = [{"index": sn.index, "label": sn.label, "depth": sn.depth,
-                         "particles": int(len(sn.radius))} for sn in rec.snapshots]
-    out["breakage_events"] = int(len(rec.breakage["parent_id"]))
-    out["fragments"] = int(len(rec.breakage["fragments"]["id"]))
+                         "particles": len(sn.radius)} for sn in rec.snapshots]
+    out["breakage_events"] = len(rec.breakage["parent_id"])
+    out["fragments"] = len(rec.breakage["fragments"]["id"])
     if "unload" in rec.info:
         out["unload"] = rec.info["unload"]
     return out
@@ -237,13 +380,15 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``calendaring`` command."""
     args = _parser().parse_args(argv)
     handler = {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
-               "export": cmd_export}[args.command]
+               "export": cmd_export, "pack": cmd_pack, "sweep": cmd_sweep,
+               "dataset": cmd_dataset}[args.command]
+    from calendaring.dataset import DatasetError
     from calendaring.packing import PackingError
     from calendaring.runfile import RunFileError
 
     try:
         return handler(args)
-    except (ConfigError, RunFileError, PackingError) as err:
+    except (ConfigError, RunFileError, PackingError, DatasetError) as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except SimulationError as err:

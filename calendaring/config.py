@@ -709,7 +709,7 @@ def config_hash(cfg: Any) -> str:
     return hashlib.sha256(config_json(cfg).encode()).hexdigest()
 
 
-PRESETS = ("paper", "quick", "tiny")
+PRESETS = ("paper", "quick", "sweep", "tiny")
 
 
 def preset_path(name: str) -> Path:

@@ -51,7 +51,9 @@ import datetime
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Sequence
+import sys
+import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -193,9 +195,15 @@ def resample_pressure(depth, pressure, stroke: float, n_points: int = 196
         raise ValueError(f"trace ends at {d[-1]:.4g} m, short of the {stroke:.4g} m stroke")
     d = np.concatenate([[0.0], d]) if d[0] > 0 else d
     p = np.concatenate([[p[0]], p]) if len(p) < len(d) else p
-    cum = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * np.diff(d))])
+    h = np.diff(d)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (p[1:] + p[:-1]) * h)])
     edges = np.linspace(0.0, stroke, n_points + 1)
-    at = np.interp(edges, d, cum)
+    # integral of the piecewise-linear trace from 0 to each edge, exact inside a segment
+    k = np.clip(np.searchsorted(d, edges, side="right") - 1, 0, len(d) - 2)
+    t = np.clip(edges - d[k], 0.0, None)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(h[k] > 0, (p[k + 1] - p[k]) / h[k], 0.0)
+    at = cum[k] + p[k] * t + 0.5 * slope * t * t
     return 0.5 * (edges[1:] + edges[:-1]), np.diff(at) / np.diff(edges)
 
 
@@ -305,7 +313,7 @@ def noise_floor(ds: Dataset) -> dict:
         p = ds.pressure[idx]
         rel = {}
         for frac in (0.25, 0.5, 0.75, 1.0):
-            j = min(len(ds.depth) - 1, int(round(frac * len(ds.depth))) - 1)
+            j = min(len(ds.depth) - 1, round(frac * len(ds.depth)) - 1)
             m = p[:, j].mean()
             rel[f"{int(frac * 100)}%"] = float(p[:, j].std(ddof=1) / m) if m > 0 else None
         out["groups"].append({
@@ -460,6 +468,129 @@ def read_dataset(path: str | Path) -> Dataset:
     return ds
 
 
+# ---------------------------------------------------------------------- building
+def _problem_key(cfg) -> str:
+    """What must agree between runs of one dataset: the configuration without the breakage
+    parameters, the seed and the packing path."""
+    from calendaring.config import config_json
+
+    d = json.loads(config_json(cfg))
+    for name in PAPER_SPACE.names:
+        d.get("breakage", {}).pop(name, None)
+    d.get("numerics", {}).pop("seed", None)
+    d.get("electrode", {}).pop("packing", None)
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+
+def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int = 17,
+                  savgol_order: int = 3, bins: int = 30, load_scale: str = "log",
+                  load_range: tuple[float, float] | None = None,
+                  diameter_range: tuple[float, float] | None = None,
+                  space: ParameterSpace = PAPER_SPACE, progress: bool = True,
+                  command: str = "") -> Dataset:
+    """Consolidate the run files of a sweep folder (``runs/*.h5``, or ``*.h5`` directly in
+    ``folder``) into a :class:`Dataset`. Roles and replicate groups come from the sweep's
+    manifest when there is one (otherwise every run is ``train``). Corrupt, incomplete,
+    no-breakage or foreign run files are listed in ``skipped`` with the reason.
+    """
+    from calendaring.runfile import RunFileError, read_run
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError("RUNS", str(folder), "an existing folder of run files")
+    if n_points < savgol_window:
+        raise ConfigError("n_points", n_points, f">= savgol_window = {savgol_window}")
+    if bins < 2:
+        raise ConfigError("bins", bins, ">= 2")
+    smooth(np.zeros(savgol_window + 1), savgol_window, savgol_order)  # validates the window
+    files = sorted((folder / "runs").glob("*.h5")) if (folder / "runs").is_dir() else \
+        sorted(folder.glob("*.h5"))
+    manifest = {}
+    if (folder / "manifest.json").exists():
+        from calendaring.sweep import read_manifest
+
+        manifest = read_manifest(folder)
+    rows, skipped, key0, rec0 = [], [], None, None
+    t0 = time.perf_counter()
+    for k, path in enumerate(files):
+        try:
+            rec = read_run(path)
+        except RunFileError as err:
+            skipped.append([path.name, err.reason])
+            continue
+        why = None
+        if rec.breakage_model == "none":
+            why = "a no-breakage run"
+        elif rec.info.get("final_depth", 0.0) < rec.stroke * (1 - 1e-6):
+            why = (f"incomplete stroke ({rec.info.get('final_depth', 0.0):.4g} of "
+                   f"{rec.stroke:.4g} m)")
+        else:
+            key = _problem_key(rec.config)
+            if key0 is None:
+                key0, rec0 = key, rec
+            elif key != key0:
+                why = f"a different problem from {rec0.path.name} (configuration differs " \
+                      "beyond the breakage parameters, seed and packing)"
+        if why is None:
+            try:
+                _, p = resample_pressure(rec.pressure["depth"], rec.pressure["value"],
+                                         rec.stroke, n_points)
+            except ValueError as err:
+                why = f"unusable pressure trace: {err}"
+        if why:
+            skipped.append([path.name, why])
+            continue
+        e = manifest.get(path.stem)
+        rows.append({
+            "params": [float(getattr(rec.config.breakage, n)) for n in space.names],
+            "raw": p, "load": rec.breakage["peak_load"], "diameter": rec.breakage["diameter"],
+            "run_id": path.stem, "file": path.name, "role": e.role if e else "train",
+            "design_index": e.index if e else -1, "seed": rec.seed,
+            "group": e.group if e else "", "wall": float(rec.info.get("wall_seconds", 0.0))})
+        if progress and (k == len(files) - 1 or k % 25 == 0):
+            print(f"[dataset] {k + 1}/{len(files)} run files read "
+                  f"({time.perf_counter() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+    if not rows:
+        raise DatasetError(folder, f"no usable run files ({len(skipped)} skipped: "
+                                   f"{skipped[:3]})")
+    params = np.array([r["params"] for r in rows])
+    bad = [r["run_id"] for r, x in zip(rows, params, strict=True)
+           if np.any(x < space.lower - 1e-9 * (space.upper - space.lower))
+           or np.any(x > space.upper + 1e-9 * (space.upper - space.lower))]
+    if bad:
+        raise DatasetError(folder, f"runs with parameters outside the space bounds: {bad[:5]}")
+    le, de = histogram_edges([r["load"] for r in rows], [r["diameter"] for r in rows], bins,
+                             load_scale, load_range, diameter_range)
+    hist = np.stack([bin_events(r["load"], r["diameter"], le, de) for r in rows])
+    raw = np.stack([r["raw"] for r in rows])
+    sm = smooth(raw, savgol_window, savgol_order)
+    c = np.cbrt(sm)
+    groups = sorted({r["group"] for r in rows if r["group"]})
+    gid = {g: i for i, g in enumerate(groups)}
+    edges = np.linspace(0.0, float(rec0.stroke), n_points + 1)
+    from calendaring.config import config_json
+
+    return Dataset(
+        space=space, params=params, depth=0.5 * (edges[1:] + edges[:-1]), pressure_raw=raw,
+        pressure=sm, histogram=hist, load_edges=le, diameter_edges=de,
+        n_events=np.array([len(r["load"]) for r in rows]),
+        run_id=np.array([r["run_id"] for r in rows]), role=np.array([r["role"] for r in rows]),
+        design_index=np.array([r["design_index"] for r in rows]),
+        seed=np.array([r["seed"] for r in rows]),
+        group=np.array([gid.get(r["group"], -1) for r in rows]),
+        wall_time=np.array([r["wall"] for r in rows]), stroke=float(rec0.stroke),
+        cbrt_min=float(c.min()), cbrt_max=float(c.max()), savgol_window=savgol_window,
+        savgol_order=savgol_order, load_scale=load_scale,
+        files=np.array([r["file"] for r in rows]), base_config=config_json(rec0.config),
+        skipped=skipped,
+        provenance={"runs_folder": str(folder.resolve()), "command": command,
+                    "software_version": __version__, "built": datetime.datetime.now(
+                        datetime.UTC).isoformat(timespec="seconds"),
+                    "run_files": len(files), "used": len(rows), "skipped": len(skipped),
+                    "preset": rec0.preset, "group_names": groups})
+
+
 # ---------------------------------------------------------------------- synthetic data
 def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int = 30,
                       space: ParameterSpace = PAPER_SPACE, replicate_groups: int = 0,
@@ -507,5 +638,6 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 
 
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
-           "bin_events", "centroids", "histogram_edges", "kl_divergence", "noise_floor",
-           "read_dataset", "resample_pressure", "smooth", "synthetic_dataset", "write_dataset"]
+           "bin_events", "build_dataset", "centroids", "histogram_edges", "kl_divergence",
+           "noise_floor", "read_dataset", "resample_pressure", "smooth", "synthetic_dataset",
+           "write_dataset"]

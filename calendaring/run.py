@@ -86,8 +86,10 @@ def _log(msg: str) -> None:
 class Progress:
     """A log line with rate and ETA at most every ``every`` seconds."""
 
-    def __init__(self, label: str, total: int, enabled: bool = True, every: float = 5.0):
+    def __init__(self, label: str, total: int, enabled: bool = True, every: float = 5.0,
+                 unit: str = "steps"):
         self.label, self.total, self.enabled, self.every = label, max(1, total), enabled, every
+        self.unit = unit
         self.t0 = time.perf_counter()
         self.last = -1e9
         self.start_done = None
@@ -105,8 +107,9 @@ class Progress:
         rate = (done - self.start_done) / el if el > 0 else 0.0
         eta = (self.total - done) / rate if rate > 0 else float("nan")
         eta_s = f"{eta:7.0f} s" if math.isfinite(eta) else "      ? s"
-        _log(f"[{self.label:10s}] {100 * done / self.total:5.1f} % {done}/{self.total} steps "
-             f"{rate:7.0f} steps/s ETA {eta_s} {extra}")
+        rate_s = f"{rate:7.0f}" if rate >= 1 or rate == 0 else f"{rate:7.4f}"
+        _log(f"[{self.label:10s}] {100 * done / self.total:5.1f} % {done}/{self.total} "
+             f"{self.unit} {rate_s} {self.unit}/s ETA {eta_s} {extra}")
 
 
 @dataclass
@@ -542,6 +545,36 @@ class CalenderRun:
         })
 
 
+def build_packing(cfg: SimConfig, path: str | Path, progress: bool = True) -> Path:
+    """Insert and settle the bed of ``cfg`` (the ``settle`` stage alone) and write it as a
+    packing CSV, atomically.
+
+    Runs whose ``electrode.packing`` is this file skip the settling and start with the
+    pre-compaction, so a sweep settles one bed per seed instead of one per run. The build
+    stages are breakage-free, so the bed does not depend on the ``[breakage]`` parameters.
+    """
+    from calendaring.packing import Packing, write_csv
+
+    cfg = cfg.check_run()
+    if cfg.electrode.packing:
+        raise ConfigError("electrode.packing", cfg.electrode.packing,
+                          "empty: build_packing settles a new bed")
+    runner = CalenderRun(cfg, Path(path).with_suffix(".h5"), progress=progress)
+    try:
+        runner._start()
+        runner._run_stage(time.perf_counter(), 0.0)  # settle; only positions the plate after
+        sim = runner.sim
+        a = sim.state()
+        pk = Packing(position=a["position"], radius=a["radius"], material=a["material"],
+                     ids=a["id"], cell_x=cfg.domain.cell_x, cell_y=cfg.domain.cell_y,
+                     z_bottom=sim.z_bottom, z_top=sim.z_bottom + cfg.domain.height)
+        return write_csv(path, pk, cfg.material_names)
+    finally:
+        if runner.sim is not None:
+            runner.sim.destroy()
+            runner.sim = None
+
+
 def pool_capacity(cfg: SimConfig, radius: np.ndarray, material: np.ndarray) -> int:
     """Particle slots for a run: the particles, plus every fragment that can ever exist
     when breakage is on (``breakage.pool_capacity``, or the worst case of
@@ -579,5 +612,6 @@ def run(cfg: SimConfig, out: str | Path, resume: bool = False, progress: bool = 
     return CalenderRun(cfg, out, progress=progress, preset=preset).execute(resume=resume)
 
 
-__all__ = ["BREAKAGE_COLUMNS", "SERIES", "STAGES", "CalenderRun", "Progress", "mean_grain",
+__all__ = ["BREAKAGE_COLUMNS", "SERIES", "STAGES", "CalenderRun", "Progress", "build_packing",
+           "mean_grain",
            "plate_speed", "pool_capacity", "run"]
