@@ -1,0 +1,600 @@
+"""The paper's comparison studies (sections 3.4, 3.5; Figs. 12, 13; Table 5) at small scale.
+
+Studies (each a set of ``calendaring run`` subprocesses from one preset and one seed):
+
+- ``r0r1``: breakage (R1) against the no-breakage control (R0, ``--no-breakage``): the same
+  configuration, packing and seed, so the two pressure traces are identical up to the first
+  breakage event; the report gives the depth where they part and the difference after.
+- ``psd``: the particle-size robustness set of Table 5 against the baseline R1: C1-C4 (same
+  mean, standard deviation 1.08-1.59 um) and R4, R5 (larger mean and spread). The Table 5
+  mean and standard deviation set the AM normal distribution (``electrode.sizes.AM.mean`` /
+  ``.std``); it is truncated at the same number of standard deviations below and above the
+  mean as the preset's baseline distribution (paper 2.1: N(7.74, 1.35) um in [4.94, 10.69]
+  um, i.e. -2.07 and +2.19 sigma). The AM mass fraction, coating density and thickness are
+  unchanged, so the AM mass and volume are the same in every run (as in the paper); the
+  realised diameter statistics of every run are reported next to Table 5's.
+
+For each run: the pressure-depth curve (Figs. 12 b/d, 13 a), breakage counts and, through
+:func:`analysis.microstructure.analyse_run`, porosity, tortuosity and D_eff at the snapshots
+nearest 0 and 19.5 um (or the end of a shorter stroke).
+
+Run files go to ``<out_dir>/runs/<name>.h5``. A run whose file exists and reads back is not
+run again (resume); a crashed run with a checkpoint continues from it; failures are recorded
+in the report and do not stop the other runs. ``compare.json`` and the PNGs are written
+atomically.
+
+    analysis compare --preset quick --out-dir studies/ --studies r0r1,psd
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calendaring.errors import ConfigError
+
+STUDIES = ("r0r1", "psd")
+PRESETS = ("tiny", "quick", "paper")
+PAPER_FINAL_DEPTH = 19.5e-6
+"""The paper's largest calendering depth [m] (Table 5 runs, Fig. 13)."""
+
+TABLE5 = {
+    # name: (mean, std, D10, D50, D90) of the AM diameter [m], paper Table 5 (um there)
+    "R1": (7.743e-6, 1.349e-6, 5.902e-6, 7.746e-6, 9.563e-6),
+    "C1": (7.774e-6, 1.081e-6, 6.317e-6, 7.787e-6, 9.220e-6),
+    "C2": (7.696e-6, 1.419e-6, 5.749e-6, 7.637e-6, 9.708e-6),
+    "C3": (7.752e-6, 1.506e-6, 5.653e-6, 7.758e-6, 9.845e-6),
+    "C4": (7.767e-6, 1.589e-6, 5.528e-6, 7.765e-6, 9.958e-6),
+    "R4": (9.920e-6, 1.670e-6, 7.645e-6, 9.951e-6, 12.105e-6),
+    "R5": (11.854e-6, 2.061e-6, 9.080e-6, 11.847e-6, 14.599e-6),
+}
+PSD_CASES = ("C1", "C2", "C3", "C4", "R4", "R5")
+AM_KEY = "electrode.sizes.AM"
+
+
+@dataclass
+class Case:
+    """One run of a study: its name, the studies it belongs to and its CLI arguments."""
+
+    name: str
+    studies: list[str]
+    description: str
+    no_breakage: bool = False
+    sets: dict[str, object] = field(default_factory=dict)
+
+
+def _baseline_am(preset: str):
+    from calendaring.config import load_preset
+
+    cfg = load_preset(preset)
+    am = cfg.electrode.sizes.get("AM")
+    if am is None:
+        raise ConfigError(f"preset {preset}: electrode.sizes.AM", None,
+                          "an AM size distribution (the PSD study varies it)")
+    return am
+
+
+def truncation_sigmas(preset: str) -> tuple[float, float]:
+    """(lower, upper) truncation of the preset's AM normal distribution in standard
+    deviations from the mean (used for every PSD case)."""
+    am = _baseline_am(preset)
+    if am.distribution != "normal" or am.std <= 0:
+        raise ConfigError(f"{AM_KEY}.distribution", am.distribution,
+                          "'normal' in the preset for the PSD study")
+    lo, hi = am.bounds
+    return (am.mean - lo) / am.std, (hi - am.mean) / am.std
+
+
+def _fit_cell(preset: str, sets: dict, extra_sets: Sequence[str] = ()) -> dict:
+    """``sets`` plus a larger square cell when the preset's periodic cell is too small for
+    the case's largest AM diameter (the minimum-image check of ``SimConfig.check_run``);
+    the cell grows in 1 um steps until the configuration passes. Same coating per area."""
+    from calendaring.config import load_preset, parse_override, with_overrides
+
+    base = load_preset(preset)
+    over = dict(parse_override(s) for s in extra_sets)
+    over.update(sets)
+    cell = max(base.domain.cell_x, base.domain.cell_y)
+    for _ in range(200):
+        try:
+            with_overrides(base, over).check_run()
+            return {**sets, **{k: v for k, v in over.items() if k.startswith("domain.cell_")
+                               and k not in dict(parse_override(x) for x in extra_sets)}}
+        except ConfigError as err:
+            if not str(err.key).startswith("domain.cell_"):
+                raise ConfigError(f"{err.key} (PSD case)", err.value, err.allowed) from None
+        cell = (math.floor(cell * 1e6 + 1e-6) + 1) * 1e-6
+        over["domain.cell_x"] = over["domain.cell_y"] = cell
+    raise ConfigError("domain.cell_x", cell, "a cell that fits the AM size distribution")
+
+
+def plan(studies: Sequence[str], preset: str, extra_sets: Sequence[str] = ()) -> list[Case]:
+    """The runs of the requested studies (R1 shared), in run order. ``extra_sets`` (applied
+    to every run) only matter here for fitting the cell of the PSD cases."""
+    studies = list(studies)
+    bad = [s for s in studies if s not in STUDIES]
+    if bad or not studies:
+        raise ConfigError("--studies", ",".join(studies), f"a comma-separated subset of "
+                          f"{','.join(STUDIES)}")
+    if preset not in PRESETS:
+        raise ConfigError("--preset", preset, f"one of {PRESETS}")
+    cases = [Case("R1", list(studies), "breakage, the preset's AM size distribution")]
+    if "r0r1" in studies:
+        cases.append(Case("R0", ["r0r1"], "no breakage (control), same packing and seed",
+                          no_breakage=True))
+    if "psd" in studies:
+        zlo, zhi = truncation_sigmas(preset)
+        for name in PSD_CASES:
+            mean, std = TABLE5[name][:2]
+            sets = _fit_cell(preset, {f"{AM_KEY}.distribution": "normal",
+                                      f"{AM_KEY}.mean": mean, f"{AM_KEY}.std": std,
+                                      f"{AM_KEY}.min": mean - zlo * std,
+                                      f"{AM_KEY}.max": mean + zhi * std}, extra_sets)
+            desc = f"AM normal mean {mean * 1e6:.3f} um, std {std * 1e6:.3f} um (Table 5)"
+            if "domain.cell_x" in sets:
+                desc += (f"; cell enlarged to {sets['domain.cell_x'] * 1e6:.0f} um to fit the "
+                         "largest AM diameter")
+            cases.append(Case(name, ["psd"], desc, sets=sets))
+    return cases
+
+
+def _check_overrides(preset: str, extra_sets: Sequence[str]) -> None:
+    """Bad ``--set`` overrides are bad input (ConfigError), not failed runs."""
+    from calendaring.config import load_preset, parse_override, with_overrides
+
+    over = dict(parse_override(str(x)) for x in extra_sets)
+    if over:
+        with_overrides(load_preset(preset), over).check_run()
+
+
+def _fmt(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def run_command(case: Case, out: Path, preset: str, seed: int,
+                extra_sets: Sequence[str] = (), resume: bool = False) -> list[str]:
+    """The ``calendaring run`` command line of one case."""
+    cmd = [sys.executable, "-m", "calendaring.cli", "run", "--preset", preset, "--out",
+           str(out), "--seed", str(int(seed))]
+    if case.no_breakage:
+        cmd.append("--no-breakage")
+    for s in extra_sets:
+        cmd += ["--set", s]
+    for k, v in case.sets.items():
+        cmd += ["--set", f"{k}={_fmt(v)}"]
+    if resume:
+        cmd.append("--resume")
+    elif out.exists():
+        cmd.append("--overwrite")
+    return cmd
+
+
+def _readable(path: Path) -> bool:
+    from calendaring.runfile import RunFileError, read_run
+
+    try:
+        read_run(path)
+    except (RunFileError, OSError, ValueError):
+        return False
+    return True
+
+
+def execute(case: Case, out: Path, preset: str, seed: int, extra_sets: Sequence[str] = (),
+            timeout: float | None = None, progress: bool = True,
+            lock: threading.Lock | None = None) -> dict:
+    """Run one case unless its run file exists and reads back; returns its status record
+    (``status``: ``done`` | ``exists`` | ``failed``; ``returncode`` and the last lines of its
+    output on failure)."""
+    lock = lock or threading.Lock()
+    if out.exists() and _readable(out):
+        return {"name": case.name, "status": "exists", "file": str(out)}
+    ckpt = out.with_name(out.name + ".ckpt")
+    cmd = run_command(case, out, preset, seed, extra_sets, resume=ckpt.exists())
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tail: deque[str] = deque(maxlen=30)
+    t0 = time.perf_counter()
+    env = dict(os.environ)
+    try:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, env=env)
+    except OSError as err:
+        return {"name": case.name, "status": "failed", "returncode": None,
+                "error": str(err), "command": cmd}
+    assert proc.stdout is not None
+    killed = threading.Event()
+
+    def kill():
+        killed.set()
+        proc.kill()
+
+    timer = threading.Timer(timeout, kill) if timeout else None
+    if timer:
+        timer.start()
+    try:
+        for line in proc.stdout:
+            line = line.rstrip()
+            tail.append(line)
+            if progress and line:
+                with lock:
+                    print(f"[{case.name}] {line}", file=sys.stderr, flush=True)
+        rc = proc.wait()
+    finally:
+        if timer:
+            timer.cancel()
+    timed_out = killed.is_set()
+    wall = time.perf_counter() - t0
+    if rc == 0 and not timed_out and _readable(out):
+        return {"name": case.name, "status": "done", "file": str(out), "wall_time_s": wall}
+    for tmp in out.parent.glob(f".{out.name}.tmp-*"):  # left by a killed writer
+        tmp.unlink(missing_ok=True)
+    return {"name": case.name, "status": "failed", "returncode": rc, "timed_out": timed_out,
+            "wall_time_s": wall, "output_tail": list(tail), "command": cmd}
+
+
+# ---------------------------------------------------------------------- report
+def _first_divergence(a: dict, b: dict) -> dict:
+    """Where two pressure traces (``RunRecord.pressure``) stop being identical."""
+    n = min(len(a["value"]), len(b["value"]))
+    same = (a["step"][:n] == b["step"][:n]) & (a["value"][:n] == b["value"][:n])
+    diff = np.nonzero(~same)[0]
+    k = int(diff[0]) if len(diff) else n
+    out = {"identical_samples": k, "compared_samples": n,
+           "identical_until_depth_m": float(a["depth"][k - 1]) if k > 0 else None,
+           "first_difference_depth_m": float(a["depth"][k]) if k < n else None}
+    return out
+
+
+def _curve(rec, max_points: int = 400) -> dict:
+    d, p = rec.pressure["depth"], rec.pressure["value"]
+    if len(d) > max_points:  # interval means on an even depth grid (exact for the trace)
+        from calendaring.dataset import resample_pressure
+
+        try:
+            d, p = resample_pressure(d, p, float(d[-1]), max_points)
+        except ValueError:
+            idx = np.linspace(0, len(d) - 1, max_points).astype(int)
+            d, p = d[idx], p[idx]
+    return {"depth_m": np.asarray(d).tolist(), "pressure_Pa": np.asarray(p).tolist()}
+
+
+def _am_stats(rec) -> dict:
+    if not rec.snapshots:
+        return {}
+    sn = rec.snapshots[0]
+    names = rec.config.material_names
+    if "AM" not in names:
+        return {}
+    dia = 2 * sn.radius[sn.material == names.index("AM")]
+    if len(dia) == 0:
+        return {}
+    q = np.percentile(dia, [10, 50, 90])
+    return {"n": len(dia), "mean_m": float(dia.mean()),
+            "std_m": float(dia.std(ddof=1)) if len(dia) > 1 else 0.0,
+            "D10_m": float(q[0]), "D50_m": float(q[1]), "D90_m": float(q[2])}
+
+
+def run_summary(rec) -> dict:
+    """Key figures of one run for the report (SI)."""
+    p = rec.pressure["value"]
+    ev = rec.breakage.get("depth", np.zeros(0))
+    return {"file": str(rec.path), "breakage_model": rec.breakage_model, "seed": rec.seed,
+            "stroke_m": rec.stroke, "final_depth_m": rec.info.get("final_depth"),
+            "peak_pressure_Pa": float(p.max()) if len(p) else None,
+            "final_pressure_Pa": float(p[-1]) if len(p) else None,
+            "breakage_events": len(ev),
+            "first_breakage_depth_m": float(np.min(ev)) if len(ev) else None,
+            "particles_final": len(rec.snapshots[-1].radius) if rec.snapshots else None,
+            "am_diameter_at_start": _am_stats(rec),
+            "snapshots": [{"index": s.index, "depth_m": s.depth} for s in rec.snapshots],
+            "wall_seconds": rec.info.get("wall_seconds"), "curve": _curve(rec)}
+
+
+def target_snapshots(rec, depths: Sequence[float] | None = None) -> list[int]:
+    """Snapshot indices nearest 0 and 19.5 um (clipped to the run's stroke), unique."""
+    depths = depths if depths is not None else (0.0, min(PAPER_FINAL_DEPTH, rec.stroke))
+    idx = []
+    for d in depths:
+        k = rec.snapshot_near(d).index
+        if k not in idx:
+            idx.append(k)
+    return idx
+
+
+def _micro_rows(js) -> list[dict]:
+    """Porosity / tortuosity / D_eff rows from ``MicrostructureResult.to_json()``."""
+    snaps = js.get("snapshots", js) if isinstance(js, dict) else js
+    if isinstance(snaps, dict):
+        snaps = list(snaps.values())
+    rows = []
+    for s in snaps if isinstance(snaps, list) else []:
+        if not isinstance(s, dict):
+            continue
+        rows.append({
+            "snapshot": s.get("snapshot", s.get("index")),
+            "depth_m": s.get("depth_m", s.get("depth")),
+            "porosity": s.get("voxel_porosity", s.get("porosity")),
+            "particle_porosity": s.get("particle_porosity"),
+            "tortuosity": s.get("tortuosity"),
+            "tortuosity_reason": s.get("tortuosity_reason"),
+            "D_eff": s.get("D_eff"),
+            "voxel_size_m": s.get("voxel_size_m"),
+            "extrapolated": {k: (s.get("extrapolated") or {}).get(k)
+                             for k in ("voxel_porosity", "tortuosity", "D_eff")}})
+    return rows
+
+
+def microstructure(run_file: Path, snapshots: list[int], **kw) -> dict:
+    """:func:`analysis.microstructure.analyse_run` at the given snapshots; an error record
+    (not an exception) when the module is missing or the analysis fails."""
+    try:
+        from analysis.microstructure import analyse_run
+    except ImportError as err:
+        return {"error": f"analysis.microstructure unavailable: {err}"}
+    try:
+        res = analyse_run(run_file, snapshots=snapshots, **kw)
+        js = res.to_json()
+    except Exception as err:  # recorded in the report; other runs go on
+        return {"error": f"{type(err).__name__}: {err}"}
+    return {"snapshots_analysed": snapshots, "table": _micro_rows(js), "result": js}
+
+
+def _read_json(path: Path):
+    import json
+
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+# ---------------------------------------------------------------------- plots
+def plot_micro_table(tables: dict[str, list[dict]], path: Path) -> Path:
+    """Porosity, tortuosity and D_eff against depth for several runs (Fig. 13 b-d) from the
+    microstructure table rows (primary resolution; open markers: extrapolated)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from analysis.plots import save_figure
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    panels = (("porosity", "voxel porosity [%]", 100.0), ("tortuosity", "tortuosity [-]", 1.0),
+              ("D_eff", "relative D_eff [-]", 1.0))
+    for k, (name, rows) in enumerate(tables.items()):
+        d = np.array([np.nan if r["depth_m"] is None else r["depth_m"] for r in rows]) * 1e6
+        for ax, (key, label, f) in zip(axes, panels, strict=True):
+            y = np.array([np.nan if r.get(key) is None else r[key] for r in rows], float)
+            ax.plot(d, y * f, "o-", color=f"C{k}", label=name)
+            ex = np.array([np.nan if (r.get("extrapolated") or {}).get(
+                "voxel_porosity" if key == "porosity" else key) is None else
+                r["extrapolated"]["voxel_porosity" if key == "porosity" else key]
+                for r in rows], float)
+            if np.isfinite(ex).any():
+                ax.plot(d, ex * f, "o:", mfc="none", color=f"C{k}")
+            ax.set_xlabel("calendering depth [um]")
+            ax.set_ylabel(label)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_pressure(curves: dict[str, dict], path: Path, title: str) -> Path:
+    """Pressure-depth curves of several runs (um / MPa)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from analysis.plots import save_figure
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for name, c in curves.items():
+        ax.plot(np.asarray(c["depth"]) * 1e6, np.asarray(c["pressure"]) * 1e-6, lw=1.2,
+                label=name)
+    ax.set_xlabel("calendering depth [um]")
+    ax.set_ylabel("pressure [MPa]")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_psd(diams: dict[str, np.ndarray], path: Path, title: str) -> Path:
+    """AM diameter distributions at the start of several runs (Fig. 12 a/c)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from analysis.plots import save_figure
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    allv = np.concatenate([v for v in diams.values() if len(v)]) * 1e6
+    bins = np.linspace(allv.min(), allv.max(), 16) if len(allv) else 10
+    for name, v in diams.items():
+        ax.hist(np.asarray(v) * 1e6, bins=bins, density=True, histtype="step", lw=1.3,
+                label=f"{name} ({len(v)})")
+    ax.set_xlabel("AM diameter [um]")
+    ax.set_ylabel("probability density [1/um]")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+# ---------------------------------------------------------------------- study
+def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] = STUDIES,
+            seed: int = 0, extra_sets: Sequence[str] = (), jobs: int = 1,
+            micro: bool = True, micro_kw: dict | None = None, timeout: float | None = None,
+            progress: bool = True) -> dict:
+    """Run (or resume) the studies and write ``compare.json`` and PNGs into ``out_dir``.
+
+    Args:
+        out_dir: output folder (run files under ``runs/``).
+        preset: ``calendaring`` preset of every run.
+        studies: subset of :data:`STUDIES`.
+        seed: the one seed of every run (same packing for R0 and R1).
+        extra_sets: ``KEY=VALUE`` overrides applied to every run (e.g. a shorter stroke).
+        jobs: runs at the same time (each a subprocess).
+        micro: analyse the microstructure at the snapshots nearest 0 and 19.5 um.
+        micro_kw: keyword arguments of ``analyse_run`` (device, voxels_per_diameter, ...).
+        timeout: seconds allowed per run (None: no limit).
+
+    Returns:
+        The report (also in ``compare.json``): ``runs`` (status of each), ``failures``,
+        per study the run summaries, the R0/R1 divergence, the PSD table and the
+        microstructure tables.
+    """
+    from analysis.plots import atomic_write_json
+    from calendaring.runfile import read_run
+
+    if int(jobs) < 1:
+        raise ConfigError("--jobs", jobs, "an integer >= 1")
+    for s in extra_sets:
+        if "=" not in str(s):
+            raise ConfigError("--set", s, "the form KEY=VALUE")
+    cases = plan(studies, preset, extra_sets)
+    _check_overrides(preset, extra_sets)
+    out_dir = Path(out_dir)
+    runs_dir = out_dir / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    lock = threading.Lock()
+    t0 = time.perf_counter()
+    if progress:
+        print(f"compare: {len(cases)} runs ({', '.join(c.name for c in cases)}), preset "
+              f"{preset}, seed {seed}, {jobs} at a time", file=sys.stderr, flush=True)
+
+    def go(case):
+        st = execute(case, runs_dir / f"{case.name}.h5", preset, seed, extra_sets, timeout,
+                     progress, lock)
+        if progress:
+            with lock:
+                print(f"compare: {case.name} {st['status']} "
+                      f"({time.perf_counter() - t0:.0f} s elapsed)", file=sys.stderr,
+                      flush=True)
+        return st
+
+    with ThreadPoolExecutor(max_workers=int(jobs)) as pool:
+        statuses = list(pool.map(go, cases))
+    ok = {st["name"]: read_run(st["file"]) for st in statuses if st["status"] != "failed"}
+    report = {"preset": preset, "seed": seed, "studies": list(studies),
+              "extra_sets": list(extra_sets),
+              "units": "SI (m, Pa, N); tortuosity, D_eff (relative) and porosity dimensionless",
+              "runs": [{**st, "description": c.description, "studies": c.studies,
+                        "sets": c.sets, "no_breakage": c.no_breakage}
+                       for st, c in zip(statuses, cases, strict=True)],
+              "failures": [st for st in statuses if st["status"] == "failed"],
+              "summaries": {n: run_summary(r) for n, r in ok.items()}}
+    figures = []
+    if micro:
+        mk = dict(micro_kw or {})
+        mk.setdefault("device", "cpu")
+        mk.pop("progress", None)
+        report["microstructure"] = {}
+        for n, r in ok.items():
+            snaps = target_snapshots(r)
+            cache = runs_dir / f"{n}.microstructure.json"
+            key = {"snapshots": snaps, "settings": {k: mk[k] for k in sorted(mk)},
+                   "run_config_hash": r.info.get("config_hash"), "created": r.created}
+            old = _read_json(cache)
+            if old is not None and old.get("key") == key and "error" not in old["value"]:
+                report["microstructure"][n] = {**old["value"], "cached": True}
+                continue
+            if progress:
+                print(f"compare: microstructure of {n} at snapshots {snaps}", file=sys.stderr,
+                      flush=True)
+            val = microstructure(r.path, snaps, progress=progress, **mk)
+            report["microstructure"][n] = val
+            if "error" not in val:
+                atomic_write_json(cache, {"key": key, "value": val})
+        have = {n: v["table"] for n, v in report["microstructure"].items() if v.get("table")}
+        if have:
+            figures.append(plot_micro_table(have, out_dir / "fig13bcd_microstructure.png"))
+
+    if "r0r1" in studies and "R0" in ok and "R1" in ok:
+        r0, r1 = ok["R0"], ok["R1"]
+        div = _first_divergence(r1.pressure, r0.pressure)
+        s1 = report["summaries"]["R1"]
+        div["first_breakage_depth_m"] = s1["first_breakage_depth_m"]
+        div["final_pressure_ratio_R1_over_R0"] = (
+            s1["final_pressure_Pa"] / report["summaries"]["R0"]["final_pressure_Pa"]
+            if report["summaries"]["R0"]["final_pressure_Pa"] else None)
+        div["same_initial_packing"] = bool(
+            r0.snapshots and r1.snapshots
+            and np.array_equal(r0.snapshots[0].position, r1.snapshots[0].position)
+            and np.array_equal(r0.snapshots[0].radius, r1.snapshots[0].radius))
+        report["r0r1"] = div
+        figures.append(plot_pressure(
+            {"R0 (no breakage)": _raw(r0), "R1 (breakage)": _raw(r1)},
+            out_dir / "r0r1_pressure.png", f"R0 vs R1, preset {preset}, seed {seed}"))
+    if "psd" in studies:
+        table = {}
+        for name in ("R1", *PSD_CASES):
+            t = TABLE5[name]
+            row = {"table5": dict(zip(("mean_m", "std_m", "D10_m", "D50_m", "D90_m"), t,
+                                      strict=True))}
+            if name in ok:
+                row["realised"] = report["summaries"][name]["am_diameter_at_start"]
+            table[name] = row
+        report["psd"] = table
+        groups = [("fig12b_psd_std_pressure.png", "R1, C1-C4: AM size spread (Fig. 12b)",
+                   ("R1", "C1", "C2", "C3", "C4")),
+                  ("fig12d_psd_mean_pressure.png", "R1, R4, R5: AM mean size (Fig. 12d)",
+                   ("R1", "R4", "R5"))]
+        for fname, title, names in groups:
+            have = [n for n in names if n in ok]
+            if have:
+                figures.append(plot_pressure({n: _raw(ok[n]) for n in have}, out_dir / fname,
+                                             title))
+                figures.append(plot_psd({n: _am_diameters(ok[n]) for n in have},
+                                        out_dir / fname.replace("pressure", "distribution")
+                                        .replace("12b", "12a").replace("12d", "12c"),
+                                        title.replace("(Fig. 12b)", "(Fig. 12a)")
+                                        .replace("(Fig. 12d)", "(Fig. 12c)")))
+    fig13 = [n for n in ("R0", "R1", "R4", "R5") if n in ok]
+    if len(fig13) > 1:
+        figures.append(plot_pressure({n: _raw(ok[n]) for n in fig13},
+                                     out_dir / "fig13a_pressure.png",
+                                     "Pressure-depth curves (Fig. 13a)"))
+    report["figures"] = [p.name for p in figures]
+    report["wall_time_s"] = time.perf_counter() - t0
+    atomic_write_json(out_dir / "compare.json", report)
+    if progress:
+        print(f"compare: wrote {out_dir / 'compare.json'} ({len(report['failures'])} "
+              f"failed runs)", file=sys.stderr, flush=True)
+    return report
+
+
+def _raw(rec) -> dict:
+    return {"depth": rec.pressure["depth"], "pressure": rec.pressure["value"]}
+
+
+def _am_diameters(rec) -> np.ndarray:
+    if not rec.snapshots or "AM" not in rec.config.material_names:
+        return np.zeros(0)
+    sn = rec.snapshots[0]
+    return 2 * sn.radius[sn.material == rec.config.material_names.index("AM")]
+
+
+__all__ = ["PSD_CASES", "STUDIES", "TABLE5", "Case", "compare", "execute", "plan",
+           "run_command", "run_summary", "target_snapshots", "truncation_sigmas"]

@@ -1,0 +1,161 @@
+"""The comparison studies: the run plan (Table 5), and R0 vs R1 on the tiny preset.
+
+``test_r0_r1_tiny_*`` run two real ``calendaring run`` subprocesses (tiny preset, stroke
+shortened to 1.3 um, where seed 0 breaks a first particle at 1.05 um; 15-30 s each, two at
+a time): the slowest tests of the analysis suite, marked ``slow`` (deselect them with
+``-m "not slow"``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis.compare import PSD_CASES, TABLE5, compare, plan, run_command
+from calendaring.errors import ConfigError
+
+TINY_SETS = ["protocol.stroke=1.3e-6", "protocol.snapshot_depths=[0.0, 1.3e-6]",
+             "numerics.threads=1"]
+
+
+def test_plan_sets_table5_distributions():
+    cases = {c.name: c for c in plan(["r0r1", "psd"], "quick")}
+    assert list(cases) == ["R1", "R0", *PSD_CASES]
+    assert cases["R0"].no_breakage and not cases["R1"].no_breakage
+    assert cases["R1"].sets == {} and cases["R1"].studies == ["r0r1", "psd"]
+    for name in PSD_CASES:
+        s = cases[name].sets
+        mean, std = TABLE5[name][:2]
+        assert s["electrode.sizes.AM.mean"] == mean and s["electrode.sizes.AM.std"] == std
+        # the baseline's truncation, N(7.74, 1.35) in [4.94, 10.69] um, in units of sigma
+        assert (mean - s["electrode.sizes.AM.min"]) / std == pytest.approx(2.80 / 1.35)
+        assert (s["electrode.sizes.AM.max"] - mean) / std == pytest.approx(2.95 / 1.35)
+    # R5's largest diameter (16.4 um) needs a cell wider than the quick preset's 30 um
+    assert cases["R5"].sets["domain.cell_x"] > 30e-6
+    assert "domain.cell_x" not in cases["C1"].sets
+    cmd = run_command(cases["R0"], Path("x.h5"), "quick", 7)
+    assert cmd[cmd.index("--seed") + 1] == "7" and "--no-breakage" in cmd
+    cmd = run_command(cases["C1"], Path("x.h5"), "quick", 7, ["protocol.stroke=1e-6"])
+    assert "electrode.sizes.AM.std=1.081e-06" in cmd and "protocol.stroke=1e-6" in cmd
+
+
+def test_plan_bad_input():
+    with pytest.raises(ConfigError, match="--studies"):
+        plan(["r0r1", "nonsense"], "quick")
+    with pytest.raises(ConfigError, match="--preset"):
+        plan(["r0r1"], "huge")
+
+
+@pytest.fixture(scope="module")
+def tiny_r0r1(tmp_path_factory):
+    out = tmp_path_factory.mktemp("compare")
+    rep = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS, jobs=2,
+                  micro=False, progress=False)
+    return out, rep
+
+
+@pytest.mark.slow
+def test_r0_r1_tiny_share_packing_until_first_breakage(tiny_r0r1):
+    """Slow (two tiny DEM runs): R0 and R1 from one seed are identical up to R1's first
+    breakage event and differ after it."""
+    from calendaring.runfile import read_run
+
+    out, rep = tiny_r0r1
+    assert rep["failures"] == []
+    assert {r["name"]: r["status"] for r in rep["runs"]} == {"R1": "done", "R0": "done"}
+    r1, r0 = read_run(out / "runs" / "R1.h5"), read_run(out / "runs" / "R0.h5")
+    assert r0.breakage_model == "none" and r1.breakage_model != "none"
+    assert r0.seed == r1.seed == 0
+    ev = r1.breakage["depth"]
+    assert len(ev) >= 1 and len(r0.breakage["depth"]) == 0
+    first = float(ev.min())
+    d = rep["r0r1"]
+    assert d["same_initial_packing"]
+    assert d["first_breakage_depth_m"] == pytest.approx(first)
+    # independent check on the raw traces: bitwise equal before the first event
+    before = r1.pressure["depth"] < first - 1e-12
+    n = int(before.sum())
+    assert n > 100
+    np.testing.assert_array_equal(r1.pressure["value"][:n], r0.pressure["value"][:n])
+    assert d["identical_samples"] >= n
+    assert d["first_difference_depth_m"] is not None  # they do part after breakage
+    assert d["first_difference_depth_m"] >= first - 1e-12
+    spacing = float(np.max(np.diff(r1.pressure["depth"])))
+    assert d["first_difference_depth_m"] <= first + 2 * spacing
+    js = json.loads((out / "compare.json").read_text())
+    assert js["summaries"]["R1"]["breakage_events"] == len(ev)
+    assert (out / "r0r1_pressure.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_r0_r1_tiny_resume_skips_existing_runs(tiny_r0r1, monkeypatch):
+    out, _ = tiny_r0r1
+    import analysis.compare as cmp
+
+    def no_subprocess(*a, **k):
+        raise AssertionError("a finished run was started again")
+
+    monkeypatch.setattr(cmp.subprocess, "Popen", no_subprocess)
+    rep = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
+                  micro=False, progress=False)
+    assert [r["status"] for r in rep["runs"]] == ["exists", "exists"]
+
+
+def test_bad_override_is_bad_input(tmp_path):
+    with pytest.raises(ConfigError, match=r"numerics\.nope"):
+        compare(tmp_path, preset="tiny", studies=["r0r1"], extra_sets=["numerics.nope=1"],
+                micro=False, progress=False)
+    assert not (tmp_path / "compare.json").exists()
+
+
+def test_failed_run_is_recorded_not_raised(tmp_path):
+    # a run killed by the per-run time limit: the failure lands in the report
+    rep = compare(tmp_path, preset="tiny", studies=["r0r1"], timeout=0.5, micro=False,
+                  progress=False)
+    assert len(rep["failures"]) == 2 and all(f["timed_out"] for f in rep["failures"])
+    assert [r["status"] for r in rep["runs"]] == ["failed", "failed"]
+    assert json.loads((tmp_path / "compare.json").read_text())["failures"]
+    assert not (tmp_path / "runs" / "R1.h5").exists()
+    assert "r0r1" not in rep
+
+
+@pytest.mark.slow
+def test_r0_r1_tiny_microstructure_table_and_cache(tiny_r0r1, monkeypatch):
+    """The report takes porosity / tortuosity / D_eff from ``analyse_run`` at the snapshots
+    nearest 0 and the end of the stroke, and caches them per run (a stand-in analyse_run
+    here; the microstructure numbers themselves are tested with that module)."""
+    micro = pytest.importorskip("analysis.microstructure")
+    out, _ = tiny_r0r1
+    calls = []
+
+    class Fake:
+        def __init__(self, run_file, snapshots):
+            self.run_file, self.snapshots = run_file, snapshots
+
+        def to_json(self):
+            return {"snapshots": [{"index": k, "depth_m": 1e-6 * k, "voxel_porosity": 0.4 - k
+                                   * 0.1, "tortuosity": 1.5 + k, "D_eff": (0.4 - k * 0.1)
+                                   / (1.5 + k), "extrapolated": None}
+                                  for k in self.snapshots]}
+
+    def fake_analyse_run(run_file, snapshots=None, **kw):
+        calls.append((Path(run_file).name, list(snapshots), kw))
+        return Fake(run_file, snapshots)
+
+    monkeypatch.setattr(micro, "analyse_run", fake_analyse_run)
+    rep = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
+                  micro=True, micro_kw={"voxels_per_diameter": 3.0}, progress=False)
+    assert sorted(c[0] for c in calls) == ["R0.h5", "R1.h5"]
+    assert all(c[1] == [0, 1] and c[2]["device"] == "cpu" and c[2]["voxels_per_diameter"] == 3
+               for c in calls)  # snapshots at 0 and 1.3 um (the end of this stroke)
+    rows = rep["microstructure"]["R1"]["table"]
+    assert [r["snapshot"] for r in rows] == [0, 1]
+    assert rows[1]["porosity"] == pytest.approx(0.3) and rows[1]["tortuosity"] == 2.5
+    assert (out / "fig13bcd_microstructure.png").exists()
+    calls.clear()
+    rep2 = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
+                   micro=True, micro_kw={"voxels_per_diameter": 3.0}, progress=False)
+    assert calls == [] and rep2["microstructure"]["R0"]["cached"]
