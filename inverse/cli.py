@@ -1,0 +1,277 @@
+"""Command line: ``inverse calibrate | verify | validate``.
+
+Exit codes: 0 success, 2 bad input (nothing written), 1 anything else.
+
+    inverse calibrate --model model.pt --target curve.csv --out result.json
+    inverse calibrate --model model.pt --target run.h5 --out result.json --posterior \\
+        --fix damage_constant=5.549 --fix truncation_ratio=89.928
+    inverse calibrate --model model.pt --target curve.csv --out result.json --multistart 64
+    inverse verify result.json --preset quick --seeds 3 --draws 4
+    inverse validate --model model.pt --dataset dataset.h5 --out validation/
+
+Target CSV: a header with units, ``depth_um,pressure_MPa[,sigma_MPa]`` or
+``depth_m,pressure_Pa[,sigma_Pa]`` (see :mod:`inverse.targets`). Parameter values in ``--fix``
+are SI (percent for alpha_percentage and truncation_ratio), names as in ``[breakage]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from calendaring.errors import ConfigError
+
+EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):
+        self.print_usage(sys.stderr)
+        print(f"error: {message}", file=sys.stderr)
+        sys.exit(EXIT_BAD_INPUT)
+
+
+def _parser() -> argparse.ArgumentParser:
+    from inverse.optimise import DEFAULT_ITERATIONS, DEFAULT_MULTISTART, DEFAULT_RESTARTS
+    from inverse.posterior import PosteriorConfig
+
+    pc = PosteriorConfig()
+    ap = _Parser(prog="inverse", description=__doc__.split("\n\n")[0],
+                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    c = sub.add_parser("calibrate", help="infer the breakage parameters from a pressure curve")
+    c.add_argument("--model", required=True, help="surrogate checkpoint (MODEL.pt)")
+    c.add_argument("--target", required=True, help="CURVE.csv (units in the header) or RUN.h5")
+    c.add_argument("--out", required=True, help="result JSON to write")
+    c.add_argument("--restarts", type=int, default=None,
+                   help=f"Sobol-started restarts (default {DEFAULT_RESTARTS}; "
+                        f"{DEFAULT_MULTISTART} with --multistart)")
+    c.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS,
+                   help="iterations per restart: 30 %% Adam, 70 %% L-BFGS")
+    c.add_argument("--multistart", action="store_true",
+                   help="many restarts, batched, with the optima clustered")
+    c.add_argument("--posterior", action="store_true", help="sample the posterior (emcee)")
+    c.add_argument("--walkers", type=int, default=pc.walkers)
+    c.add_argument("--steps", type=int, default=pc.steps, help="MCMC steps per walker")
+    c.add_argument("--burn", type=int, default=pc.burn, help="MCMC burn-in steps")
+    c.add_argument("--model-error", type=float, default=pc.model_error_sigma,
+                   help="surrogate error sigma in normalised pressure units, added to the "
+                        "likelihood variance (e.g. the model's held-out RMSE)")
+    c.add_argument("--sigma-rel", type=float, default=pc.sigma_rel,
+                   help="default observation sigma, relative part (without a sigma column)")
+    c.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold a parameter at a physical value (SI); repeatable")
+    c.add_argument("--centroids", metavar="LOAD_N,DIAMETER_M",
+                   help="target breakage centroid (peak load [N], parent diameter [m])")
+    c.add_argument("--profiles", choices=("slice", "optimised", "none"), default="slice",
+                   help="loss profiles along each parameter (identifiability report)")
+    c.add_argument("--seed", type=int, default=0, help="Sobol scrambling and MCMC seed")
+    c.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads (default 1: fastest for this small network)")
+    c.add_argument("--no-plots", action="store_true", help="write no PNGs")
+    c.add_argument("--quiet", action="store_true", help="no progress output")
+    v = sub.add_parser("verify", help="run the DEM at the calibrated parameters")
+    v.add_argument("result", help="RESULT.json from `inverse calibrate`")
+    v.add_argument("--preset", choices=("quick", "paper", "tiny"), default="quick")
+    v.add_argument("--seeds", type=int, default=1, help="DEM seeds at the optimum")
+    v.add_argument("--draws", type=int, default=0, help="posterior draws to run (one seed)")
+    v.add_argument("--first-seed", type=int, default=0)
+    v.add_argument("--out-dir", help="folder for runs, verify.json and verify.png "
+                                     "(default: RESULT_verify/)")
+    a = sub.add_parser("validate", help="calibrate held-out dataset rows with known parameters")
+    a.add_argument("--model", required=True)
+    a.add_argument("--dataset", required=True, help="DATASET.h5 (calendaring dataset)")
+    a.add_argument("--out", required=True, help="output folder")
+    a.add_argument("--rows", type=int, nargs="+", help="row indices (default: role holdout)")
+    a.add_argument("--restarts", type=int, default=DEFAULT_RESTARTS)
+    a.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS)
+    a.add_argument("--steps", type=int, default=pc.steps)
+    a.add_argument("--burn", type=int, default=pc.burn)
+    a.add_argument("--walkers", type=int, default=pc.walkers)
+    a.add_argument("--model-error", type=float, default=pc.model_error_sigma,
+                   help="surrogate error sigma in normalised pressure units, added to the "
+                        "likelihood variance (e.g. the model's held-out RMSE)")
+    a.add_argument("--sigma-rel", type=float, default=pc.sigma_rel)
+    a.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE")
+    a.add_argument("--no-distribution", action="store_true",
+                   help="calibrate on the pressure curve only (no centroid term)")
+    a.add_argument("--seed", type=int, default=0)
+    a.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    a.add_argument("--quiet", action="store_true")
+    return ap
+
+
+def parse_fix(items: list[str]) -> dict[str, float]:
+    """``["name=value", ...]`` -> ``{name: float}`` (names checked later against the space)."""
+    out = {}
+    for s in items:
+        if "=" not in s:
+            raise ConfigError("--fix", s, "NAME=VALUE, e.g. damage_constant=5.549")
+        k, v = s.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise ConfigError(f"--fix {k.strip()}", v, "a number (SI units)") from None
+    return out
+
+
+def _centroids(s: str | None):
+    if not s:
+        return None
+    try:
+        vals = [float(x) for x in s.split(",")]
+    except ValueError:
+        raise ConfigError("--centroids", s, "LOAD_N,DIAMETER_M (two numbers, SI)") from None
+    if len(vals) != 2:
+        raise ConfigError("--centroids", s, "LOAD_N,DIAMETER_M (two numbers, SI)")
+    return vals
+
+
+def _load_model(path: str):
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError("--model", path, "an existing surrogate checkpoint file")
+    import surrogate
+
+    return surrogate.load(p)
+
+
+def cmd_calibrate(args) -> int:
+    from dataclasses import replace
+
+    from inverse.calibrate import calibrate_target
+    from inverse.optimise import DEFAULT_MULTISTART, DEFAULT_RESTARTS, OptimiserConfig
+    from inverse.posterior import PosteriorConfig
+    from inverse.report import format_table4, write_json
+    from inverse.targets import load_target
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".json":
+        raise ConfigError("--out", str(out), "a path ending in .json")
+    fix = parse_fix(args.fix)
+    restarts = args.restarts or (DEFAULT_MULTISTART if args.multistart else DEFAULT_RESTARTS)
+    opt = OptimiserConfig(iterations=args.iterations, restarts=restarts, seed=args.seed,
+                          batch=True if args.multistart else None)
+    post = PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
+                           seed=args.seed, sigma_rel=args.sigma_rel,
+                           model_error_sigma=args.model_error) if args.posterior else None
+    model = _load_model(args.model)
+    model.space.check(fix)
+    target = load_target(args.target, model, _centroids(args.centroids))
+    progress = not args.quiet
+    if progress:
+        print(f"target: {target.source}, {target.n_valid} of {len(target.depth)} model depths"
+              f"{', with centroid' if target.centroids is not None else ''}", file=sys.stderr)
+    oc = calibrate_target(model, target, optimiser=replace(opt), fix=fix,
+                          posterior=post, identifiability=args.profiles != "none",
+                          profile_mode=args.profiles if args.profiles != "none" else "slice",
+                          progress=progress, model_path=args.model)
+    res = oc.result
+    if not args.no_plots:
+        stem = out.with_suffix("")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        plots = {}
+        if "identifiability" in res:
+            from inverse.identifiability import plot_identifiability
+
+            plots["identifiability"] = str(plot_identifiability(
+                res["identifiability"], f"{stem}_identifiability.png",
+                {p.name: p.symbol for p in model.space}))
+        if oc.posterior is not None:
+            from inverse.posterior import observation_sigma, plot_predictive, plot_trace
+
+            plots["predictive"] = str(plot_predictive(
+                target, res["posterior"]["predictive"], f"{stem}_predictive.png",
+                best_pressure=res["prediction"]["pressure_Pa"],
+                sigma_pa=observation_sigma(target, post)))
+            plots["trace"] = str(plot_trace(oc.posterior, f"{stem}_trace.png",
+                                            {p.name: p.symbol for p in model.space}))
+        res["plots"] = plots
+    write_json(out, res)
+    print(format_table4(res))
+    print(f"wrote {out}")
+    return EXIT_OK
+
+
+def cmd_verify(args) -> int:
+    from inverse.verify import verify
+
+    rep = verify(args.result, preset=args.preset, seeds=args.seeds, draws=args.draws,
+                 out_dir=args.out_dir, first_seed=args.first_seed)
+    e = rep["optimum_mean_error"]
+    for c in rep["curves"]:
+        ce = c["error"]
+        if ce["rmse_Pa"] is not None:
+            print(f"{c['kind']:>8s} seed {c['seed']}: RMSE {ce['rmse_Pa'] / 1e6:.4g} MPa "
+                  f"({100 * ce['relative_rmse']:.1f} %) over {ce['points']} points")
+    if e and e.get("rmse_Pa") is not None:
+        print(f"mean of {rep['seeds']} DEM run(s) at the optimum vs target: RMSE "
+              f"{e['rmse_Pa'] / 1e6:.4g} MPa ({100 * e['relative_rmse']:.1f} %), max |error| "
+              f"{e['max_abs_Pa'] / 1e6:.4g} MPa over {e['points']} points")
+    print(f"wrote {Path(rep['plot']).parent / 'verify.json'} and {rep['plot']}")
+    return EXIT_OK
+
+
+def cmd_validate(args) -> int:
+    from calendaring.dataset import read_dataset
+    from inverse.optimise import OptimiserConfig
+    from inverse.posterior import PosteriorConfig
+    from inverse.validate import validate_to_dir
+
+    model = _load_model(args.model)
+    ds = read_dataset(args.dataset)
+    fix = parse_fix(args.fix)
+    model.space.check(fix)
+    rep = validate_to_dir(
+        model, ds, args.out, rows=args.rows,
+        optimiser=OptimiserConfig(iterations=args.iterations, restarts=args.restarts,
+                                  seed=args.seed),
+        posterior=PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
+                                  seed=args.seed, sigma_rel=args.sigma_rel,
+                                  model_error_sigma=args.model_error),
+        use_distribution=not args.no_distribution, fix=fix or None, progress=not args.quiet)
+    print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}")
+    for name, p in rep["per_parameter"].items():
+        print(f"{name:<18s}{p['mae_unit_optimum']:>11.3f}{100 * p['coverage_ci90']:>14.0f}%")
+    print(f"{rep['n_rows']} rows; key coverage {rep['key_coverage']}; goal "
+          f"{'met' if rep['goal_met'] else 'not met'} ({rep['goal']})")
+    print(f"wrote {Path(args.out) / 'validation.json'}")
+    return EXIT_OK
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``inverse`` console script; returns the exit code."""
+    args = _parser().parse_args(argv)
+    handler = {"calibrate": cmd_calibrate, "verify": cmd_verify,
+               "validate": cmd_validate}[args.command]
+    if getattr(args, "threads", None) is not None:
+        if args.threads < 1:
+            print(f"error: --threads = {args.threads} is invalid: allowed an integer >= 1",
+                  file=sys.stderr)
+            return EXIT_BAD_INPUT
+        import torch
+
+        torch.set_num_threads(args.threads)
+    from calendaring.dataset import DatasetError
+    from calendaring.runfile import RunFileError
+
+    bad = [ConfigError, DatasetError, RunFileError]
+    try:
+        from surrogate.checkpoint import CheckpointError
+
+        bad.append(CheckpointError)
+    except ImportError:  # surrogate not installed: no checkpoint errors to catch
+        pass
+    try:
+        return handler(args)
+    except tuple(bad) as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except Exception as err:  # noqa: BLE001 - the CLI reports and exits 1
+        print(f"error: {type(err).__name__}: {err}", file=sys.stderr)
+        return EXIT_ERROR
+
+
+if __name__ == "__main__":
+    sys.exit(main())

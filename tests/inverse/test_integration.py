@@ -1,0 +1,87 @@
+"""Integration with the real surrogate: a tiny model trained on the synthetic dataset."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+surrogate = pytest.importorskip("surrogate")
+
+from calendaring.dataset import synthetic_dataset, write_dataset  # noqa: E402
+from inverse import cli  # noqa: E402
+from inverse.calibrate import calibrate_target  # noqa: E402
+from inverse.optimise import OptimiserConfig  # noqa: E402
+from inverse.posterior import PosteriorConfig  # noqa: E402
+from inverse.report import read_result  # noqa: E402
+from inverse.targets import write_curve_csv  # noqa: E402
+from inverse.validate import row_target, validate_to_dir  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    from surrogate import ModelConfig, SurrogateModel, TrainConfig, train
+
+    ds = synthetic_dataset(n=128, seed=0)
+    res = train(ds, TrainConfig(epochs=40, batch_size=32, patience=0, lr=3e-3),
+                ModelConfig(embed_width=64, block_widths=(64, 32), pressure_hidden=64,
+                            dist_hidden=(64, 64), dropout=0.0), progress=False)
+    path = tmp_path_factory.mktemp("model") / "model.pt"
+    SurrogateModel.from_training(res, ds).save(path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def truth():
+    ds = synthetic_dataset(n=4, seed=7)
+    ds.role = np.array(["holdout"] * len(ds))
+    return ds
+
+
+def test_cli_calibrates_a_synthetic_curve_with_the_real_model(model_file, truth, tmp_path):
+    m = surrogate.load(model_file)
+    csv = write_curve_csv(tmp_path / "curve.csv", truth.depth, truth.pressure[0])
+    out = tmp_path / "result.json"
+    rc = cli.main(["calibrate", "--model", str(model_file), "--target", str(csv), "--out",
+                   str(out), "--restarts", "2", "--iterations", "120", "--no-plots",
+                   "--profiles", "none", "--quiet"])
+    assert rc == 0
+    res = read_result(out)
+    # the curve is reproduced (the synthetic pressure does not pin down all 8 parameters)
+    assert res["fit"]["relative_rmse"] < 0.1
+    x = np.array([p["value"] for p in res["parameters"]])
+    m.space.check_array(x)
+
+
+def test_posterior_and_identifiability_run_on_the_real_model(model_file, truth):
+    m = surrogate.load(model_file)
+    t = row_target(m, truth, 1)
+    assert t.centroids is not None  # the synthetic histogram gives a centroid
+    oc = calibrate_target(m, t, optimiser=OptimiserConfig(iterations=100, restarts=1),
+                          posterior=PosteriorConfig(walkers=20, steps=150, burn=50),
+                          fix={"damage_constant": 5.0})
+    r = oc.result
+    assert len(r["identifiability"]["hessian"]["eigenvalues"]) == 7
+    assert set(r["posterior"]["parameters"]) == set(m.space.names) - {"damage_constant"}
+    # phi sets the synthetic diameter centroid: it is pinned down better than the prior
+    assert r["posterior"]["parameters"]["phi"]["std_ratio"] < 0.8
+
+
+def test_validate_on_held_out_rows(model_file, truth, tmp_path):
+    m = surrogate.load(model_file)
+    ds_path = write_dataset(tmp_path / "holdout.h5", truth)
+    from calendaring.dataset import read_dataset
+
+    from inverse.validate import select_rows
+
+    np.testing.assert_array_equal(select_rows(read_dataset(ds_path)), [0, 1, 2, 3])
+    rep = validate_to_dir(m, read_dataset(ds_path), tmp_path / "val", rows=[0, 2],
+                          optimiser=OptimiserConfig(iterations=60, restarts=1),
+                          posterior=PosteriorConfig(walkers=18, steps=120, burn=40),
+                          progress=False)
+    assert rep["n_rows"] == 2 and set(rep["key_coverage"]) == {"d0", "phi"}
+    for name, p in rep["per_parameter"].items():
+        assert 0.0 <= p["coverage_ci90"] <= 1.0
+        truth_u = [r["parameters"][name]["truth_unit"] for r in rep["rows"]]
+        np.testing.assert_allclose(truth_u, truth.unit_params[[0, 2], m.space.index(name)])
+    assert (tmp_path / "val" / "validation.json").is_file()
+    assert (tmp_path / "val" / "validation.png").is_file()
