@@ -245,9 +245,18 @@ def cmd_microstructure(args) -> int:
                         report["render_errors"].append(f"{what} snapshot {k}: "
                                                        f"{type(err).__name__}: {err}")
     atomic_write_json(out / "microstructure.json", report)
+    from analysis.microstructure import format_table, microstructure_table
+
+    depths = [s.depth for s in res.snapshots]
+    table = format_table(microstructure_table({rec.path.stem: res}, depths=depths))
+    tmp = out / ".microstructure.md.tmp"
+    tmp.write_text(table + "\n")
+    tmp.replace(out / "microstructure.md")
+    print(table)
     for e in report["render_errors"]:
         print(f"warning: {e}", file=sys.stderr)
-    print(f"wrote {out / 'microstructure.json'} and {len(report['figures'])} figures")
+    print(f"wrote {out / 'microstructure.json'}, microstructure.md and "
+          f"{len(report['figures'])} figures")
     return EXIT_OK
 
 

@@ -832,6 +832,9 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     def f(v, fmt):
         return "n/p" if v is None else format(v, fmt)
 
+    def g(v):
+        return "-" if v is None else format(v, ".4f")
+
     lines = ["| run | depth [um] | porosity particle / voxel [%] | tau | D_eff | "
              "tau / D_eff (2nd res.) | tau / D_eff (extrap.) | voxel [um] |",
              "|---|---|---|---|---|---|---|---|"]
@@ -839,10 +842,11 @@ def format_table(rows: list[dict[str, Any]]) -> str:
         lines.append(
             f"| {r['run']} | {r['depth_m'] * 1e6:.1f} | {100 * r['particle_porosity']:.2f} / "
             f"{100 * r['voxel_porosity']:.2f} | {f(r['tortuosity'], '.4f')} | "
-            f"{f(r['D_eff'], '.4f')} | {f(r['tortuosity_second'], '.4f')} / "
-            f"{f(r['D_eff_second'], '.4f')} | {f(r['tortuosity_extrapolated'], '.4f')} / "
-            f"{f(r['D_eff_extrapolated'], '.4f')} | {r['voxel_size_m'] * 1e6:.3f} |")
-    lines.append("n/p: the pore phase does not percolate through the thickness.")
+            f"{f(r['D_eff'], '.4f')} | {g(r['tortuosity_second'])} / "
+            f"{g(r['D_eff_second'])} | {g(r['tortuosity_extrapolated'])} / "
+            f"{g(r['D_eff_extrapolated'])} | {r['voxel_size_m'] * 1e6:.3f} |")
+    lines.append("n/p: the pore phase does not percolate through the thickness; -: not "
+                 "computed (no second resolution) or not percolating there.")
     return "\n".join(lines)
 
 

@@ -58,6 +58,10 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--model-error", type=float, default=pc.model_error_sigma,
                    help="surrogate error sigma in normalised pressure units, added to the "
                         "likelihood variance (e.g. the model's held-out RMSE)")
+    c.add_argument("--correlation-length", type=float, default=None,
+                   help="points per independent residual in the likelihood (default: the "
+                        "Savitzky-Golay filter's noise correlation length, 7.5; 1: treat "
+                        "the points as independent)")
     c.add_argument("--sigma-rel", type=float, default=pc.sigma_rel,
                    help="default observation sigma, relative part (without a sigma column)")
     c.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
@@ -92,6 +96,10 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--model-error", type=float, default=pc.model_error_sigma,
                    help="surrogate error sigma in normalised pressure units, added to the "
                         "likelihood variance (e.g. the model's held-out RMSE)")
+    a.add_argument("--correlation-length", type=float, default=None,
+                   help="points per independent residual in the likelihood (default: the "
+                        "Savitzky-Golay filter's noise correlation length, 7.5; 1: treat "
+                        "the points as independent)")
     a.add_argument("--sigma-rel", type=float, default=pc.sigma_rel)
     a.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE")
     a.add_argument("--no-distribution", action="store_true",
@@ -155,7 +163,8 @@ def cmd_calibrate(args) -> int:
                           batch=True if args.multistart else None)
     post = PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
                            seed=args.seed, sigma_rel=args.sigma_rel,
-                           model_error_sigma=args.model_error) if args.posterior else None
+                           model_error_sigma=args.model_error,
+                           correlation_length=args.correlation_length) if args.posterior else None
     model = _load_model(args.model)
     model.space.check(fix)
     target = load_target(args.target, model, _centroids(args.centroids))
@@ -229,7 +238,8 @@ def cmd_validate(args) -> int:
                                   seed=args.seed),
         posterior=PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
                                   seed=args.seed, sigma_rel=args.sigma_rel,
-                                  model_error_sigma=args.model_error),
+                                  model_error_sigma=args.model_error,
+                                  correlation_length=args.correlation_length),
         use_distribution=not args.no_distribution, fix=fix or None, progress=not args.quiet)
     print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}")
     for name, p in rep["per_parameter"].items():

@@ -19,9 +19,13 @@ Gaussian term on the scaled centroid coordinates (``centroid_sigma``) is added.
 
 Observation sigma: the target's own (CSV ``sigma_*`` column) or, without one,
 ``sigma_rel x P + sigma_abs_frac x max P`` (defaults 5 % and 1 %; documented, not measured).
-Neighbouring points of a smoothed curve are correlated; the independent-point likelihood then
-gives intervals that are narrower than the data warrant; :func:`validation <inverse.validate>`
-measures their coverage.
+Neighbouring points of a smoothed curve are correlated, so the 196 residuals are not 196
+independent observations. The log-likelihood sum is divided by a correlation length ``L``
+(points per independent observation; ``correlation_length``): by default the integrated
+correlation length of white noise passed through the Savitzky-Golay filter of the dataset,
+``L = (sum h)^2 / sum h^2`` (7.5 points for window 17, order 3; :func:`savgol_correlation_length`),
+``L = 1`` gives the independent-point likelihood. Smooth model discrepancy is correlated over
+longer ranges still; :func:`validation <inverse.validate>` measures the coverage that results.
 
 Outputs (:class:`PosteriorResult`): samples (unit and physical), mean, std, median, 90 %
 credible interval, posterior/prior width per parameter (std / (1/sqrt 12) and 90 % interval
@@ -58,6 +62,7 @@ class PosteriorConfig:
     centroid_sigma: float = 0.05  # scaled centroid coordinates
     use_model_variance: bool = True
     model_error_sigma: float = 0.0  # surrogate error, normalised units (e.g. its test RMSE)
+    correlation_length: float | None = None  # points per independent residual (None: S-G)
     init_radius: float = 0.02  # walkers start in a ball of this radius around the optimum
     predictive_draws: int = 200
 
@@ -71,8 +76,21 @@ class PosteriorConfig:
             if not getattr(self, k) >= 0:
                 raise ConfigError(f"posterior.{k}", getattr(self, k), ">= 0")
 
+        if self.correlation_length is not None and not self.correlation_length >= 1:
+            raise ConfigError("posterior.correlation_length", self.correlation_length,
+                              ">= 1 point (1: independent points)")
+
     def to_json(self) -> dict:
         return asdict(self)
+
+
+def savgol_correlation_length(window: int = 17, order: int = 3) -> float:
+    """Integrated correlation length [points] of white noise after a Savitzky-Golay filter:
+    ``(sum h)^2 / sum h^2`` for the filter's central coefficients ``h``."""
+    from scipy.signal import savgol_coeffs
+
+    h = savgol_coeffs(window, order)
+    return float(h.sum() ** 2 / np.sum(h**2))
 
 
 def observation_sigma(target: Target, cfg: PosteriorConfig) -> np.ndarray:
@@ -130,6 +148,8 @@ class LogPosterior:
         self.y = torch.as_tensor(model.normalise_pressure(target.pressure[self.valid]),
                                  dtype=torch.float64)
         self.valid_t = torch.as_tensor(self.valid)
+        self.correlation_length = (cfg.correlation_length if cfg.correlation_length is not None
+                                   else savgol_correlation_length())
         self.loss = loss
         self.use_centroid = loss is not None and loss.has_centroid
         self.evaluations = 0
@@ -155,7 +175,7 @@ class LogPosterior:
         v = self.obs_var.expand_as(r)
         if var is not None and self.cfg.use_model_variance:
             v = v + var.double()[:, self.valid_t]
-        ll = -0.5 * (r**2 / v + torch.log(2 * np.pi * v)).sum(dim=1)
+        ll = -0.5 * (r**2 / v + torch.log(2 * np.pi * v)).sum(dim=1) / self.correlation_length
         if self.use_centroid:
             c = self.loss.predicted_centroid(dist).double() - self.loss.c_target.double()
             ll = ll - 0.5 * ((c / self.cfg.centroid_sigma) ** 2).sum(dim=1)

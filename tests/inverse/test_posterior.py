@@ -13,6 +13,7 @@ from inverse.posterior import (
     normalised_sigma,
     observation_sigma,
     sample_posterior,
+    savgol_correlation_length,
 )
 from inverse.targets import Target
 from tests.inverse.standins import CBRT_MAX, LinearSurrogate
@@ -60,7 +61,8 @@ def test_posterior_matches_the_linear_gaussian_closed_form():
     mean = cov @ (w * m.A.T @ (y - m.b))
     sd = np.sqrt(np.diag(cov))
     assert np.all(mean - 4 * sd > 0) and np.all(mean + 4 * sd < 1)  # prior bounds irrelevant
-    cfg = PosteriorConfig(walkers=32, steps=2000, burn=600, seed=0, predictive_draws=100)
+    cfg = PosteriorConfig(walkers=32, steps=2000, burn=600, seed=0, predictive_draws=100,
+                          correlation_length=1.0)  # the target's noise is independent
     r = sample_posterior(m, t, mean, np.ones(8, bool), cfg)
     got_mean = np.array([r.summary[n]["mean_unit"] for n in r.names])
     got_sd = np.array([r.summary[n]["std_unit"] for n in r.names])
@@ -105,3 +107,21 @@ def test_fixed_parameters_are_not_sampled():
     r = sample_posterior(m, t, U_TRUE, free, cfg)
     assert r.names == [n for i, n in enumerate(m.space.names) if free[i]]
     assert r.samples_unit.shape[1] == 6
+
+
+def test_correlation_length_tempers_the_likelihood():
+    # a boxcar (order 0) filter of width w has noise correlation length exactly w
+    assert savgol_correlation_length(9, 0) == pytest.approx(9.0)
+    assert savgol_correlation_length(17, 3) == pytest.approx(7.5116, rel=1e-4)
+    # dividing a Gaussian log-likelihood by L multiplies the posterior variance by L
+    s_norm = 0.005
+    m = LinearSurrogate(var=None, blob=False)
+    t, _ = _noisy_target(m, s_norm, seed=3)
+    cfg = PosteriorConfig(walkers=24, steps=600, burn=200, seed=1, predictive_draws=20,
+                          correlation_length=1.0)
+    a = sample_posterior(m, t, U_TRUE, np.ones(8, bool), cfg)
+    b = sample_posterior(m, t, U_TRUE, np.ones(8, bool), replace(cfg, correlation_length=4.0))
+    ratio = np.mean([b.summary[n]["std_unit"] / a.summary[n]["std_unit"] for n in a.names])
+    assert ratio == pytest.approx(2.0, rel=0.2)
+    with pytest.raises(ConfigError, match="correlation_length"):
+        PosteriorConfig(correlation_length=0.5)
