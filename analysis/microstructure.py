@@ -712,15 +712,9 @@ class MicrostructureResult:
 
     def write_json(self, path: str | Path) -> Path:
         """Write :meth:`to_json` atomically (temporary name, then rename)."""
-        import json
-        import os
+        from calendaring.fileio import write_json
 
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        tmp.write_text(json.dumps(self.to_json(), indent=2))
-        os.replace(tmp, path)
-        return path
+        return write_json(path, self.to_json(), indent=2)
 
 
 def _select(record, snapshots) -> list:
@@ -851,13 +845,9 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 
 
 def _save_figure(fig, path: Path) -> Path:
-    import os
+    from calendaring.fileio import save_figure
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    fig.savefig(tmp, dpi=150, bbox_inches="tight")
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=150, bbox_inches="tight")
 
 
 def plot_microstructure(results: dict[str, MicrostructureResult], out_dir) -> list[Path]:

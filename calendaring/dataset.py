@@ -47,6 +47,7 @@ configuration), ``fingerprint`` (SHA-256 of the arrays), ``skipped`` (JSON list 
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import hashlib
 import json
@@ -145,12 +146,11 @@ class Dataset:
 
     @property
     def load_centres(self) -> np.ndarray:
-        e = self.load_edges
-        return np.sqrt(e[:-1] * e[1:]) if self.load_scale == "log" else 0.5 * (e[:-1] + e[1:])
+        return bin_centres(self.load_edges, self.load_scale)
 
     @property
     def diameter_centres(self) -> np.ndarray:
-        return 0.5 * (self.diameter_edges[:-1] + self.diameter_edges[1:])
+        return bin_centres(self.diameter_edges, "linear")
 
     def subset(self, mask) -> Dataset:
         """Rows selected by a boolean mask or an index array (metadata shared)."""
@@ -248,6 +248,12 @@ def histogram_edges(loads: Iterable[np.ndarray], diameters: Iterable[np.ndarray]
         le = np.linspace(lo, hi, bins + 1)
     de = np.linspace(diameter_range[0], diameter_range[1], bins + 1)
     return le, de
+
+
+def bin_centres(edges: np.ndarray, scale: str = "linear") -> np.ndarray:
+    """Bin centres of ``edges``: geometric on a log axis, arithmetic otherwise."""
+    e = np.asarray(edges, float)
+    return np.sqrt(e[:-1] * e[1:]) if scale == "log" else 0.5 * (e[:-1] + e[1:])
 
 
 def bin_events(load, diameter, load_edges, diameter_edges) -> np.ndarray:
@@ -591,6 +597,44 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
                     "preset": rec0.preset, "group_names": groups})
 
 
+def provenance_report(folder: str | Path, ds: Dataset) -> dict:
+    """What a committed dataset needs beside it: how it was made (command, software version,
+    designs and their largest |r|), the sweep's wall times and run counts per role (from the
+    manifest), breakage events per run, and the replicate noise floors."""
+    folder = Path(folder)
+    rep = {"dataset_fingerprint": ds.fingerprint, **ds.provenance}
+    designs = {}
+    for p in sorted((folder / "designs").glob("*.json")):
+        with contextlib.suppress(ValueError, KeyError, OSError):
+            designs[p.stem] = json.loads(p.read_text())["max_abs_r"]
+    rep["designs_max_abs_r"] = designs
+    if (folder / "manifest.json").exists():
+        from calendaring.sweep import read_manifest
+
+        runs = read_manifest(folder)
+        by_role = {}
+        for e in runs.values():
+            r = by_role.setdefault(e.role, {"done": 0, "failed": 0, "pending": 0,
+                                            "running": 0, "wall_seconds": []})
+            r[e.status] += 1
+            if e.status == "done" and e.wall_time:
+                r["wall_seconds"].append(e.wall_time)
+        for r in by_role.values():
+            w = r.pop("wall_seconds")
+            r["wall_seconds_per_run_mean"] = float(np.mean(w)) if w else None
+            r["wall_seconds_total"] = float(np.sum(w)) if w else None
+        rep["sweep"] = by_role
+        failed = [[e.run_id, e.error.splitlines()[0] if e.error else ""]
+                  for e in runs.values() if e.status == "failed"]
+        rep["failed_runs"] = failed
+    ev = ds.n_events
+    rep["events_per_run"] = {"mean": float(ev.mean()), "min": int(ev.min()),
+                             "max": int(ev.max()), "runs_without_events": int(np.sum(ev == 0))}
+    rep["rows_by_role"] = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
+    rep["noise_floor"] = noise_floor(ds)
+    return rep
+
+
 # ---------------------------------------------------------------------- synthetic data
 def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int = 30,
                       space: ParameterSpace = PAPER_SPACE, replicate_groups: int = 0,
@@ -638,6 +682,6 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 
 
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
-           "bin_events", "build_dataset", "centroids", "histogram_edges", "kl_divergence",
-           "noise_floor", "read_dataset", "resample_pressure", "smooth", "synthetic_dataset",
-           "write_dataset"]
+           "bin_centres", "bin_events", "build_dataset", "centroids", "histogram_edges",
+           "kl_divergence", "noise_floor", "provenance_report", "read_dataset", "resample_pressure", "smooth",
+           "synthetic_dataset", "write_dataset"]

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from calendaring.errors import ConfigError
+from calendaring.fileio import save_figure
 from calendaring.params import PAPER_SPACE, ParameterSpace
 
 DESIGNS = ("lhs", "sobol", "reference", "centre")
@@ -120,12 +121,7 @@ def plot_correlation(report: dict, path: Path, space: ParameterSpace = PAPER_SPA
     ax.set_title(f"design correlation (n = {report['n']}, max |r| = {report['max_abs_r']:.3f})")
     fig.colorbar(im, ax=ax, label="Pearson r")
     fig.tight_layout()
-    path = Path(path)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    fig.savefig(tmp, dpi=120)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 __all__ = ["DESIGNS", "design_report", "make_design", "plot_correlation", "read_design_csv",

@@ -13,13 +13,12 @@ target curve), ``prediction``, ``optimiser``, ``restarts``, ``clusters``,
 from __future__ import annotations
 
 import json
-import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from calendaring.errors import ConfigError
+from calendaring.fileio import write_json as _write_json
 
 FORMAT = "inverse-calibration"
 SCHEMA_VERSION = 1
@@ -37,37 +36,12 @@ TABLE4 = {
 }
 
 
-def _clean(obj):
-    """JSON-safe copy: NumPy to Python, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _clean(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def write_json(path: str | Path, obj: dict) -> Path:
     """Write ``obj`` as JSON atomically (temporary name in the same folder, then rename)."""
     path = Path(path)
     if path.suffix.lower() != ".json":
         raise ConfigError("--out", str(path), "a path ending in .json")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(_clean(obj), f, indent=1)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+    return _write_json(path, obj)
 
 
 def read_result(path: str | Path) -> dict:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring.dataset import Dataset
+from calendaring.dataset import Dataset, bin_centres
 from calendaring.errors import ConfigError
 from calendaring.params import ParameterSpace
 from surrogate.checkpoint import (
@@ -108,12 +108,11 @@ class SurrogateModel:
 
     @property
     def load_centres(self) -> np.ndarray:
-        e = self.load_edges
-        return np.sqrt(e[:-1] * e[1:]) if self.load_scale == "log" else 0.5 * (e[:-1] + e[1:])
+        return bin_centres(self.load_edges, self.load_scale)
 
     @property
     def diameter_centres(self) -> np.ndarray:
-        return 0.5 * (self.diameter_edges[:-1] + self.diameter_edges[1:])
+        return bin_centres(self.diameter_edges, "linear")
 
     def __repr__(self) -> str:
         kind = f"ensemble of {self.n_members}" if self.is_ensemble else "single model"

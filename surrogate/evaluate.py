@@ -24,7 +24,6 @@ the figures and the markdown table.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from dataclasses import replace
@@ -35,6 +34,7 @@ from tqdm.auto import tqdm
 
 from calendaring.dataset import Dataset, centroids, kl_divergence, noise_floor
 from calendaring.errors import ConfigError
+from calendaring.fileio import save_figure, write_text
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.checkpoint import json_default
@@ -50,34 +50,12 @@ PAPER_TABLE3 = {"train": {"mse": 0.0018, "kl": 0.3000, "total": 0.0913},
 
 
 # ---------------------------------------------------------------------- file helpers
-def write_text(path: str | Path, text: str) -> Path:
-    """Write text atomically (temporary name in the same folder, then rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
-
-
 def write_json(path: str | Path, obj) -> Path:
     return write_text(path, json.dumps(obj, indent=2, default=json_default) + "\n")
 
 
 def _save_figure(fig, path: str | Path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 # ---------------------------------------------------------------------- metrics
