@@ -242,11 +242,15 @@ def cmd_dataset(args) -> int:
                        else None, progress=not args.quiet,
                        command="calendaring dataset " + " ".join(sys.argv[2:]))
     write_dataset(out, ds)
-    from calendaring.dataset import noise_floor
+    from calendaring.dataset import noise_floor, provenance_report
 
+    prov = out.with_name(out.stem + ".provenance.json")
+    tmp = prov.with_name(f".{prov.name}.tmp")
+    tmp.write_text(json.dumps(provenance_report(args.runs, ds), indent=1, default=str))
+    tmp.replace(prov)
     nf = noise_floor(ds)
     roles = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
-    print(f"wrote {out}: {len(ds)} runs {roles}, {len(ds.skipped)} skipped, "
+    print(f"wrote {out} and {prov.name}: {len(ds)} runs {roles}, {len(ds.skipped)} skipped, "
           f"{int(ds.n_events.sum())} breakage events")
     for name, why in ds.skipped:
         print(f"skipped {name}: {why}", file=sys.stderr)

@@ -95,3 +95,17 @@ def test_correlation_heatmap_written(tmp_path):
     p = plot_correlation(rep, tmp_path / "corr.png")
     assert p.stat().st_size > 10_000
     assert list(tmp_path.iterdir()) == [p]  # no temporary left behind
+
+
+def test_sweep_preset_keeps_the_quick_physics():
+    import json
+
+    from calendaring.config import config_json, load_preset
+
+    q = json.loads(config_json(load_preset("quick")))
+    s = json.loads(config_json(load_preset("sweep").check_run()))
+    for section in q:  # only the plate speed and the output differ
+        if section not in ("protocol", "output"):
+            assert s[section] == q[section], section
+    assert s["protocol"]["stroke"] == q["protocol"]["stroke"]
+    assert s["protocol"]["inertial_number"] == 1.5 * q["protocol"]["inertial_number"]

@@ -119,6 +119,21 @@ def test_dataset_from_the_sweep(swept, tmp_path):
     assert back.n_events[0] == len(rec.breakage["peak_load"])
 
 
+def test_dataset_cli_writes_the_provenance(swept, tmp_path):
+    out, opt, runs = swept
+    r = subprocess.run([sys.executable, "-m", "calendaring.cli", "dataset", str(opt.out),
+                        "--out", str(tmp_path / "ds.h5"), "--quiet"], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    prov = json.loads((tmp_path / "ds.provenance.json").read_text())
+    assert prov["sweep"]["train"]["done"] == 2 and prov["sweep"]["train"]["failed"] == 1
+    assert prov["software_version"] and "calendaring dataset" in prov["command"]
+    assert prov["sweep"]["train"]["wall_seconds_total"] > 0
+    assert [f[0] for f in prov["failed_runs"]] == [e.run_id for e in runs.values()
+                                                    if e.status == "failed"]
+    assert read_dataset(tmp_path / "ds.h5").fingerprint == prov["dataset_fingerprint"]
+
+
 def test_resume_after_the_sweep_is_killed(swept, tmp_path):
     out, _, _ = swept
     folder = tmp_path / "killed"
