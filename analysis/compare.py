@@ -172,9 +172,11 @@ def _fmt(v) -> str:
 
 def run_command(case: Case, out: Path, preset: str, seed: int,
                 extra_sets: Sequence[str] = (), resume: bool = False) -> list[str]:
-    """The ``calendaring run`` command line of one case."""
+    """The ``calendaring run`` command line of one case. Runs use one CPU thread: runs are
+    bit-reproducible only on one thread (atomic force sums), so R0 and R1 then share their
+    packing bit for bit, and ``--jobs`` runs several at once."""
     cmd = [sys.executable, "-m", "calendaring.cli", "run", "--preset", preset, "--out",
-           str(out), "--seed", str(int(seed))]
+           str(out), "--seed", str(int(seed)), "--threads", "1"]
     if case.no_breakage:
         cmd.append("--no-breakage")
     for s in extra_sets:
