@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calendaring.config import format_override
 from calendaring.errors import ConfigError
 
 STUDIES = ("r0r1", "psd")
@@ -158,18 +159,6 @@ def _check_overrides(preset: str, extra_sets: Sequence[str]) -> None:
         with_overrides(load_preset(preset), over).check_run()
 
 
-def _fmt(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return f'"{v}"'
-    if isinstance(v, float):
-        return repr(v)
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v)
-
-
 def run_command(case: Case, out: Path, preset: str, seed: int,
                 extra_sets: Sequence[str] = (), resume: bool = False) -> list[str]:
     """The ``calendaring run`` command line of one case. Runs use one CPU thread: runs are
@@ -182,7 +171,7 @@ def run_command(case: Case, out: Path, preset: str, seed: int,
     for s in extra_sets:
         cmd += ["--set", s]
     for k, v in case.sets.items():
-        cmd += ["--set", f"{k}={_fmt(v)}"]
+        cmd += ["--set", format_override(k, v)]
     if resume:
         cmd.append("--resume")
     elif out.exists():

@@ -243,11 +243,10 @@ def cmd_dataset(args) -> int:
                        command="calendaring dataset " + " ".join(sys.argv[2:]))
     write_dataset(out, ds)
     from calendaring.dataset import noise_floor, provenance_report
+    from calendaring.fileio import write_json
 
-    prov = out.with_name(out.stem + ".provenance.json")
-    tmp = prov.with_name(f".{prov.name}.tmp")
-    tmp.write_text(json.dumps(provenance_report(args.runs, ds), indent=1, default=str))
-    tmp.replace(prov)
+    prov = write_json(out.with_name(out.stem + ".provenance.json"),
+                      provenance_report(args.runs, ds))
     nf = noise_floor(ds)
     roles = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
     print(f"wrote {out} and {prov.name}: {len(ds)} runs {roles}, {len(ds.skipped)} skipped, "

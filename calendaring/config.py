@@ -24,6 +24,7 @@ import math
 import tomllib
 import types
 import typing
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -683,6 +684,25 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key, value
 
 
+def format_override(key: str, value: Any) -> str:
+    """``key=value`` with the value in TOML syntax: the inverse of :func:`parse_override`,
+    for ``--set`` arguments of ``calendaring run`` subprocesses."""
+
+    def toml(v: Any) -> str:
+        v = v.item() if hasattr(v, "item") else v  # NumPy scalars to Python
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list | tuple):
+            return "[" + ", ".join(toml(x) for x in v) + "]"
+        if isinstance(v, int):
+            return str(v)
+        return repr(float(v))
+
+    return f"{key}={toml(value)}"
+
+
 def with_overrides(cfg: SimConfig, overrides: dict[str, Any]) -> SimConfig:
     """Return ``cfg`` with dotted-key overrides applied, e.g. ``{"numerics.seed": 3}``."""
     data = to_dict(cfg)
@@ -707,6 +727,19 @@ def config_json(cfg: Any) -> str:
 def config_hash(cfg: Any) -> str:
     """sha256 of the canonical JSON: the run ID of a configuration."""
     return hashlib.sha256(config_json(cfg).encode()).hexdigest()
+
+
+def config_hash_excluding(cfg: Any, keys: Sequence[str]) -> str:
+    """sha256 of the configuration without the dotted ``keys`` (whole sections or single
+    keys): what two configurations must share for a settled bed or a dataset to be shared."""
+    d = json.loads(config_json(cfg))
+    for dotted in keys:
+        *path, last = dotted.split(".")
+        node = d
+        for part in path:
+            node = node.get(part, {})
+        node.pop(last, None)
+    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
 PRESETS = ("paper", "quick", "sweep", "tiny")

@@ -478,14 +478,10 @@ def read_dataset(path: str | Path) -> Dataset:
 def _problem_key(cfg) -> str:
     """What must agree between runs of one dataset: the configuration without the breakage
     parameters, the seed and the packing path."""
-    from calendaring.config import config_json
+    from calendaring.config import config_hash_excluding
 
-    d = json.loads(config_json(cfg))
-    for name in PAPER_SPACE.names:
-        d.get("breakage", {}).pop(name, None)
-    d.get("numerics", {}).pop("seed", None)
-    d.get("electrode", {}).pop("packing", None)
-    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+    return config_hash_excluding(cfg, (*(f"breakage.{n}" for n in PAPER_SPACE.names),
+                                       "numerics.seed", "electrode.packing"))
 
 
 def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int = 17,
@@ -683,5 +679,5 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
            "bin_centres", "bin_events", "build_dataset", "centroids", "histogram_edges",
-           "kl_divergence", "noise_floor", "provenance_report", "read_dataset", "resample_pressure", "smooth",
-           "synthetic_dataset", "write_dataset"]
+           "kl_divergence", "noise_floor", "provenance_report", "read_dataset",
+           "resample_pressure", "smooth", "synthetic_dataset", "write_dataset"]

@@ -573,6 +573,7 @@ def build_packing(cfg: SimConfig, path: str | Path, progress: bool = True) -> Pa
         if runner.sim is not None:
             runner.sim.destroy()
             runner.sim = None
+        runner.checkpoint.unlink(missing_ok=True)  # a settle-only checkpoint is of no use
 
 
 def pool_capacity(cfg: SimConfig, radius: np.ndarray, material: np.ndarray) -> int:

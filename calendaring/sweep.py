@@ -44,7 +44,15 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.config import SimConfig, config_json, load_config, load_preset, with_overrides
+from calendaring.config import (
+    SimConfig,
+    config_hash_excluding,
+    config_json,
+    format_override,
+    load_config,
+    load_preset,
+    with_overrides,
+)
 from calendaring.design import (
     DESIGNS,
     design_report,
@@ -53,6 +61,7 @@ from calendaring.design import (
     write_design_csv,
 )
 from calendaring.errors import ConfigError
+from calendaring.fileio import write_json
 from calendaring.params import PAPER_SPACE, ParameterSpace
 
 MANIFEST = "manifest.json"
@@ -104,10 +113,7 @@ def run_config(base: SimConfig, params: dict[str, float], seed: int) -> SimConfi
 def packing_key(cfg: SimConfig) -> str:
     """Hash of what the settled bed depends on: the configuration without the breakage,
     protocol and output sections (seed included)."""
-    d = json.loads(config_json(cfg))
-    for k in ("breakage", "protocol", "output"):
-        d.pop(k, None)
-    return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+    return config_hash_excluding(cfg, ("breakage", "protocol", "output"))[:16]
 
 
 def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, seed: int,
@@ -156,14 +162,10 @@ def read_manifest(folder: Path) -> dict[str, RunEntry]:
 
 
 def write_manifest(folder: Path, runs: dict[str, RunEntry]) -> Path:
-    path = Path(folder) / MANIFEST
-    tmp = path.with_name(f".{MANIFEST}.tmp-{os.getpid()}")
     counts = {s: sum(1 for e in runs.values() if e.status == s) for s in STATUSES}
     data = {"format": MANIFEST_FORMAT, "updated": _now(), "counts": counts,
             "runs": {k: asdict(v) for k, v in sorted(runs.items())}}
-    tmp.write_text(json.dumps(data, indent=1, default=str))
-    os.replace(tmp, path)
-    return path
+    return write_json(Path(folder) / MANIFEST, data)
 
 
 def _now() -> str:
@@ -244,8 +246,9 @@ def run_task(folder: str, entry: dict, packing: str, threads: int,
     if ok:
         return {"status": "done", "wall_time": 0.0, "error": "", "reused": True}
     ckpt = out.with_name(out.name + ".ckpt")
-    sets = [f"breakage.{k}={float(v)!r}" for k, v in entry["params"].items()]
-    sets += ["breakage.enabled=true", f'electrode.packing="{packing}"']
+    sets = [format_override(f"breakage.{k}", float(v)) for k, v in entry["params"].items()]
+    sets += [format_override("breakage.enabled", True),
+             format_override("electrode.packing", packing)]
     args = ["run", *_source_args(entry["source"], entry["overrides"])]
     for s in sets:
         args += ["--set", s]
@@ -269,18 +272,8 @@ def _source_args(source: str, overrides: dict) -> list[str]:
     args = (["--preset", source.split(":", 1)[1]] if source.startswith("preset:")
             else [source])
     for k, v in overrides.items():
-        args += ["--set", f"{k}={_toml(v)}"]
+        args += ["--set", format_override(k, v)]
     return args
-
-
-def _toml(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    return repr(v)
 
 
 # ---------------------------------------------------------------------- driver
@@ -341,14 +334,12 @@ def sweep(opt: SweepOptions, task=None) -> dict[str, RunEntry]:
             (out / sub).mkdir(parents=True, exist_ok=True)
         write_design_csv(out / "designs" / f"{label}.csv", x)
         rep = design_report(x)
-        (out / "designs" / f"{label}.json").write_text(json.dumps(rep, indent=1))
+        write_json(out / "designs" / f"{label}.json", rep)
         if rep["pearson"] is not None:
             plot_correlation(rep, out / "designs" / f"{label}_correlation.png")
         runs = read_manifest(out)
         for e in planned:
-            old = runs.get(e.run_id)
-            if old is None:
-                runs[e.run_id] = e
+            runs.setdefault(e.run_id, e)
         todo = []
         for e in planned:
             cur = runs[e.run_id]
