@@ -26,19 +26,29 @@ import numpy as np
 
 def prepare_dense_bed(cfg, n_am: int, n_cb: int, porosity: float, seed: int = 0,
                       prep_speed: float = 5.0):
-    """Random loose bed pre-compacted to ``porosity`` with a coarse (20 %) step (untimed).
-
-    Returns (positions, radii, materials, velocities, plate height).
-    """
-    from calendaring.config import with_overrides
-    from calendaring.electrode import random_insertion, sample_diameters
-    from calendaring.simulation import Simulation
+    """Random loose bed of ``n_am`` + ``n_cb`` spheres from the size distributions of
+    ``cfg``, pre-compacted to ``porosity`` (see :func:`compact_bed`)."""
+    from calendaring.electrode import sample_diameters
 
     rng = np.random.default_rng(seed)
     sizes = cfg.electrode.sizes
     diam = np.concatenate([sample_diameters(sizes["AM"], rng, n_am),
                            sample_diameters(sizes["CB"], rng, n_cb)])
     mat = np.concatenate([np.zeros(n_am, np.int32), np.ones(n_cb, np.int32)])
+    return compact_bed(cfg, diam, mat, porosity, rng, prep_speed)
+
+
+def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0):
+    """Random sequential insertion of the spheres ``diam`` (materials ``mat``) in a column
+    three times the dense height, then pre-compaction by the top plate at ``prep_speed``
+    with a coarse (20 %) Rayleigh step down to ``porosity``, breakage off (untimed).
+
+    Returns (positions, radii, materials, velocities, plate height).
+    """
+    from calendaring.config import with_overrides
+    from calendaring.electrode import random_insertion
+    from calendaring.simulation import Simulation
+
     area = cfg.domain.cell_x * cfg.domain.cell_y
     z_dense = max((np.pi / 6) * np.sum(diam**3) / area / (1.0 - porosity), 1.5 * diam.max())
     z_insert = max(3.0 * z_dense, 2.5 * float(diam.max()))

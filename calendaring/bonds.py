@@ -88,8 +88,9 @@ class BondTable:
         capacity: number of bonds the table holds.
     """
 
-    def __init__(self, cfg: BondsConfig, capacity: int) -> None:
+    def __init__(self, cfg: BondsConfig, capacity: int, serial: bool = False) -> None:
         self.cfg = cfg
+        self.serial = bool(serial)  # run the per-step loop without the thread pool
         self.capacity = max(1, int(capacity))
         self.abs_mode = cfg.normal_criterion == "abs"
         fb = ti.FieldsBuilder()
@@ -167,10 +168,15 @@ class BondTable:
     @ti.kernel
     def update(self, pool: ti.template(), dt: ti.f64, lx: ti.f64, ly: ti.f64, step: ti.i32):
         """Increment every intact bond, apply its loads, check failure (one step)."""
+        self._update_all(pool, dt, lx, ly, step)
+
+    @ti.func
+    def _update_all(self, pool: ti.template(), dt, lx, ly, step):
         sn = ti.static(self.cfg.normal_stiffness)
         st = ti.static(self.cfg.shear_stiffness)
         sig_c = ti.static(self.cfg.normal_strength)
         tau_c = ti.static(self.cfg.shear_strength)
+        ti.loop_config(serialize=self.serial)
         for b in range(self.n_bonds[None]):
             if self.state[b] == INTACT:
                 i = self.slot_a[b]

@@ -60,6 +60,7 @@ class BreakageKernels:
     def __init__(self, cfg: SimConfig, d_parent_max: float) -> None:
         b = cfg.breakage
         names = cfg.material_names
+        self.serial = int(cfg.numerics.threads) == 1  # per-step loop without the thread pool
         self.n_mat = len(names)
         self.gamma = float(b.damage_constant)
         self.d0 = float(b.d0)
@@ -392,7 +393,12 @@ class BreakageKernels:
     def events(self, pool: ti.template()) -> ti.i32:
         """Stressing energy, events, damage and the breakage test; returns the number of
         parents to replace this step."""
+        return self._events_all(pool)
+
+    @ti.func
+    def _events_all(self, pool: ti.template()):
         self.n_break[None] = 0
+        ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
             if pool.alive[i] and self.breakable[pool.material[i]]:
                 self._event_one(pool, i)

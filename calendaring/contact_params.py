@@ -29,6 +29,7 @@ COLUMNS = (
     "pull_off_force",  # f0 [N]
     "adhesion_stiffness",  # k_adh for adhesion_mode direct_kadh [N m^-chi]
     "stiffness_partition",  # e_i = k_j / (k_i + k_j): share of pair work taken by body i
+    "plastic_factor",  # lambda_p^(1/n): delta_p = plastic_factor * delta_max [-]
 )
 COL = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -58,7 +59,7 @@ def plane_strain_modulus(m: MaterialConfig) -> float:
     return m.youngs_modulus / (1 - m.poisson_ratio**2)
 
 
-def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig) -> list[float]:
+def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig, n: float) -> list[float]:
     ka, kb = plane_strain_modulus(a), plane_strain_modulus(b)
     return [
         reduced_modulus(a, b),
@@ -71,6 +72,7 @@ def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig) -> list[float]:
         p.pull_off_force,
         p.adhesion_stiffness,
         kb / (ka + kb),
+        p.plasticity_ratio ** (1.0 / n),
     ]
 
 
@@ -81,7 +83,8 @@ def pair_table(cfg: SimConfig) -> np.ndarray:
     out = np.zeros((n, n, len(COLUMNS)))
     for i, a in enumerate(names):
         for j, b in enumerate(names):
-            out[i, j] = _row(cfg.materials[a], cfg.materials[b], cfg.pair(a, b))
+            out[i, j] = _row(cfg.materials[a], cfg.materials[b], cfg.pair(a, b),
+                             cfg.contact.loading_exponent)
     return out
 
 
@@ -92,5 +95,5 @@ def plate_table(cfg: SimConfig) -> np.ndarray:
     for i, a in enumerate(names):
         p = cfg.contact.plate_pairs[a]
         for w, plate in enumerate((cfg.plates.bottom, cfg.plates.top)):
-            out[i, w] = _row(cfg.materials[a], plate, p)
+            out[i, w] = _row(cfg.materials[a], plate, p, cfg.contact.loading_exponent)
     return out

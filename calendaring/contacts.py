@@ -15,6 +15,14 @@ the same partner id in i's old segment (a linear scan over at most a few entries
 it, or starts from zero. A pair whose overlap becomes <= 0 has its history cleared by the
 force kernel (the contact ended).
 
+Forces without atomics: the force kernel writes each touching pair's contribution into the
+pair's own slots (``touch``, ``pair_force``, ``pair_nft``, arms, rolling and stressing
+terms), then one loop over particles sums, for particle ``i``, its own segment and its
+incoming list (``in_start``/``in_count``/``in_pair``: the pairs whose partner is ``i``, in
+increasing pair order, built at every rebuild). No two threads write the same particle, so
+the sums need no atomic adds and their order, hence the result, does not depend on the
+number of threads.
+
 Capacity: the pair count is computed before filling; if it exceeds the capacity the host
 grows the table (copying the history) and rebuilds, never truncating.
 """
@@ -25,6 +33,7 @@ import taichi as ti
 
 PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref",
             "normal_force")
+PAIR_OUT_F64 = ("arm_i", "arm_j", "roll_force", "stress_i", "stress_j")  # per step only
 HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref")
 PAIR_I32 = ("event_a", "event_b", "sibling")  # all history
 
@@ -61,6 +70,17 @@ class ContactTable:
                 f = ti.field(ti.i32)
                 fb.dense(ti.i, self.capacity).place(f)
                 setattr(self, prefix + name, f)
+        # this step's contribution of each pair (see the module docstring)
+        self.touch = ti.field(ti.i32)
+        self.in_pair = ti.field(ti.i32)
+        fb.dense(ti.i, self.capacity).place(self.touch, self.in_pair)
+        for name in PAIR_OUT_F64:
+            f = ti.field(ti.f64)
+            fb.dense(ti.i, self.capacity).place(f)
+            setattr(self, name, f)
+        self.pair_force = ti.Vector.field(3, ti.f64)  # force on the owner [N]
+        self.pair_nft = ti.Vector.field(3, ti.f64)  # normal x tangential force [N]
+        fb.dense(ti.i, self.capacity).place(self.pair_force, self.pair_nft)
         names = (*HISTORY_F64, *PAIR_I32)  # f64 first
         self._history = [getattr(self, n) for n in names]
         self._history_old = [getattr(self, "old_" + n) for n in names]
@@ -72,11 +92,16 @@ class ContactTable:
         self.seg_count = ti.field(ti.i32)
         self.old_seg_start = ti.field(ti.i32)
         self.old_seg_count = ti.field(ti.i32)
-        for f in (self.seg_start, self.seg_count, self.old_seg_start, self.old_seg_count):
+        self.in_start = ti.field(ti.i32)
+        self.in_count = ti.field(ti.i32)
+        self.in_cursor = ti.field(ti.i32)
+        for f in (self.seg_start, self.seg_count, self.old_seg_start, self.old_seg_count,
+                  self.in_start, self.in_count, self.in_cursor):
             fb.dense(ti.i, self.particle_capacity).place(f)
         self.n_pairs = ti.field(ti.i32)
         self.required = ti.field(ti.i32)
-        fb.place(self.n_pairs, self.required)
+        self.in_total = ti.field(ti.i32)
+        fb.place(self.n_pairs, self.required, self.in_total)
         self._tree = fb.finalize()
 
     def destroy(self) -> None:
@@ -198,6 +223,34 @@ class ContactTable:
                 self.event_b[c] = pool.event_id[self.partner[c]]
                 self.sibling[c] = 0
             self.normal_force[c] = 0.0
+
+    @ti.kernel
+    def build_incoming(self, pool: ti.template()):
+        """Per particle, the pairs whose partner it is, in increasing pair order."""
+        for i in range(pool.n_slots[None]):
+            self.in_count[i] = 0
+        for c in range(self.n_pairs[None]):
+            ti.atomic_add(self.in_count[self.partner[c]], 1)
+        ti.loop_config(serialize=True)
+        for i in range(pool.n_slots[None]):
+            if i == 0:
+                self.in_total[None] = 0
+            self.in_start[i] = self.in_total[None]
+            self.in_total[None] += self.in_count[i]
+        for i in range(pool.n_slots[None]):
+            self.in_cursor[i] = self.in_start[i]
+        for c in range(self.n_pairs[None]):
+            k = ti.atomic_add(self.in_cursor[self.partner[c]], 1)
+            self.in_pair[k] = c
+        for i in range(pool.n_slots[None]):  # insertion sort: the scatter order is racy
+            lo = self.in_start[i]
+            for k in range(lo + 1, lo + self.in_count[i]):
+                v = self.in_pair[k]
+                m = k
+                while m > lo and self.in_pair[m - 1] > v:
+                    self.in_pair[m] = self.in_pair[m - 1]
+                    m -= 1
+                self.in_pair[m] = v
 
     @ti.kernel
     def reset_displacements(self, pool: ti.template()):

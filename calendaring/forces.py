@@ -30,7 +30,6 @@ from calendaring.laws.eepa import (
     eepa_damping_coefficient,
     eepa_hysteretic_force,
     eepa_loading_stiffness,
-    eepa_plastic_overlap,
     eepa_potential,
 )
 from calendaring.laws.rolling import rolling_torque
@@ -72,6 +71,9 @@ class Kernels:
         self.adhesion_mode = _ADHESION[c.adhesion_mode]
         self.damping_mode = _DAMPING[c.damping_mode]
         self.track_energy = bool(cfg.numerics.track_energy)
+        # one thread: the per-step loops run serialised, without the thread pool's dispatch
+        # (about 45 us per parallel loop on a 2-core x86 VM, more than a small bed's work)
+        self.serial = int(cfg.numerics.threads) == 1
         # stressing-work bookkeeping of the breakage model (spec 5.4), compiled in only when
         # some material can break
         self.breakage = breakage_enabled(cfg)
@@ -141,7 +143,7 @@ class Kernels:
         k1 = eepa_loading_stiffness(e_star, r_star, n)
         k2 = k1 / (1.0 - lam)
         dmax = ti.max(delta_max, delta)
-        delta_p = eepa_plastic_overlap(dmax, lam, n)
+        delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
         k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
                                         tab[a, b, COL["adhesion_stiffness"]], n, chi,
                                         ti.static(self.adhesion_mode))
@@ -189,14 +191,62 @@ class Kernels:
                 lx: ti.f64, ly: ti.f64, half_skin: ti.f64, step: ti.i32, trace_slot: ti.i32):
         """Kick, drift, guards, reset to gravity, particle-plate contacts; the plate z forces
         of this step go to ``trace[trace_slot]``."""
+        self._advance_all(pool, kick, drift, dt, gravity, z_bottom, z_top, v_top, lx, ly,
+                          half_skin, step, trace_slot)
+
+    @ti.kernel
+    def step(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+             bonds: ti.template(), breakage: ti.template(), kick: ti.f64, dt: ti.f64,
+             gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64, v_top: ti.f64, lx: ti.f64,
+             ly: ti.f64, half_skin: ti.f64, step: ti.i32, trace_slot: ti.i32,
+             max_overlap_fraction: ti.f64) -> ti.i32:
+        """One whole time step in one launch (each top-level loop is still its own parallel
+        task): :meth:`advance` (drift 1) to step ``step + 1``, :meth:`pair_forces` and
+        :meth:`gather_pair_forces` over the current candidate list, then the bonds'
+        update and the breakage test when ``bonds`` / ``breakage`` are not None.
+
+        Returns :meth:`flags` plus 8 x the number of parents to replace this step.
+        """
+        self._advance_all(pool, kick, 1.0, dt, gravity, z_bottom, z_top, v_top, lx, ly,
+                          half_skin, step, trace_slot)
+        self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step + 1)
+        self._gather_all(pool, table)
+        if ti.static(bonds != None):  # noqa: E711 (a compile-time test in Taichi scope)
+            bonds._update_all(pool, dt, lx, ly, step + 1)
+        n_break = 0
+        if ti.static(breakage != None):  # noqa: E711
+            n_break = breakage._events_all(pool)
+        return self._flags(pool) | (n_break << 3)
+
+    @ti.func
+    def _advance_all(self, pool: ti.template(), kick, drift, dt, gravity, z_bottom, z_top,
+                     v_top, lx, ly, half_skin, step, trace_slot):
         self.plate_force[0] = ti.Vector([0.0, 0.0, 0.0])
         self.plate_force[1] = ti.Vector([0.0, 0.0, 0.0])
+        ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self._advance_one(pool, i, kick, drift, dt, gravity, z_bottom, z_top, v_top,
                                   lx, ly, half_skin, step)
         self.trace[trace_slot, 0] = self.plate_force[0][2]
         self.trace[trace_slot, 1] = self.plate_force[1][2]
+
+    @ti.kernel
+    def flags(self, pool: ti.template()) -> ti.i32:
+        """The device flags in one launch: 1 pool overflow, 2 a guard fired, 4 the
+        neighbour list needs a rebuild."""
+        return self._flags(pool)
+
+    @ti.func
+    def _flags(self, pool: ti.template()):
+        out = 0
+        if pool.overflow[None] != 0:
+            out |= 1
+        if self.guard_count[None] != 0:
+            out |= 2
+        if self.need_rebuild[None] != 0:
+            out |= 4
+        return out
 
     @ti.kernel
     def synchronise(self, pool: ti.template(), dt: ti.f64):
@@ -326,11 +376,63 @@ class Kernels:
     def pair_forces(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
                     dt: ti.f64, max_overlap_fraction: ti.f64, step: ti.i32):
         """Particle-particle contacts over the candidate pairs."""
+        self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step)
+
+    @ti.func
+    def _pairs_all(self, pool: ti.template(), table: ti.template(), grid: ti.template(), dt,
+                   max_overlap_fraction, step):
+        ti.loop_config(serialize=self.serial)
         for c in range(table.n_pairs[None]):
             i = table.owner[c]
             j = table.partner[c]
+            table.touch[c] = 0
             if pool.alive[i] and pool.alive[j]:
                 self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
+
+    @ti.kernel
+    def gather_pair_forces(self, pool: ti.template(), table: ti.template()):
+        """Add this step's pair contributions to each particle: its own segment, then its
+        incoming pairs (no atomics: one thread per particle, fixed order)."""
+        self._gather_all(pool, table)
+
+    @ti.func
+    def _gather_all(self, pool: ti.template(), table: ti.template()):
+        ti.loop_config(serialize=self.serial)
+        for i in range(pool.n_slots[None]):
+            if pool.alive[i]:
+                f = ti.Vector([0.0, 0.0, 0.0])
+                t = ti.Vector([0.0, 0.0, 0.0])
+                roll = 0.0
+                fn = 0.0
+                st = 0.0
+                nc = 0
+                lo = table.seg_start[i]
+                for c in range(lo, lo + table.seg_count[i]):
+                    if table.touch[c]:
+                        f += table.pair_force[c]
+                        t += table.arm_i[c] * table.pair_nft[c]
+                        roll += table.roll_force[c] * table.arm_i[c]
+                        fn += table.normal_force[c]
+                        st += table.stress_i[c]
+                        nc += 1
+                lo = table.in_start[i]
+                for k in range(lo, lo + table.in_count[i]):
+                    c = table.in_pair[k]
+                    if table.touch[c]:
+                        f -= table.pair_force[c]
+                        t += table.arm_j[c] * table.pair_nft[c]
+                        roll += table.roll_force[c] * table.arm_j[c]
+                        fn += table.normal_force[c]
+                        st += table.stress_j[c]
+                        nc += 1
+                if nc > 0:
+                    pool.force[i] = pool.force[i] + f
+                    pool.torque[i] = pool.torque[i] + t
+                    pool.roll_magnitude[i] = pool.roll_magnitude[i] + roll
+                    pool.normal_force_sum[i] = pool.normal_force_sum[i] + fn
+                    pool.n_contacts[i] = pool.n_contacts[i] + nc
+                    if ti.static(self.breakage):
+                        pool.stress_sum[i] = pool.stress_sum[i] + st
 
     @ti.func
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,
@@ -361,6 +463,8 @@ class Kernels:
                 self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
                 ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
                 table.sibling[c])
+            table.stress_i[c] = 0.0
+            table.stress_j[c] = 0.0
             if ti.static(self.breakage):
                 self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c])
             table.delta_max[c] = dmax
@@ -368,17 +472,13 @@ class Kernels:
             table.delta_prev[c] = delta
             table.fhys_prev[c] = f_hys
             table.normal_force[c] = fn_abs
-            pool.force[i] += force
-            pool.force[j] -= force
-            pool.torque[i] += (arm_i * nrm).cross(f_t)
-            pool.torque[j] += (arm_j * nrm).cross(f_t)
-            mu_r = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
-            pool.roll_magnitude[i] += mu_r * arm_i
-            pool.roll_magnitude[j] += mu_r * arm_j
-            pool.normal_force_sum[i] += fn_abs
-            pool.normal_force_sum[j] += fn_abs
-            pool.n_contacts[i] += 1
-            pool.n_contacts[j] += 1
+            # this pair's contribution, summed per particle by gather_pair_forces
+            table.touch[c] = 1
+            table.pair_force[c] = force
+            table.pair_nft[c] = nrm.cross(f_t)
+            table.arm_i[c] = arm_i
+            table.arm_j[c] = arm_j
+            table.roll_force[c] = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
             if delta > max_overlap_fraction * ti.min(ri, rj):
                 self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
             if ti.static(self.track_energy):
@@ -409,25 +509,28 @@ class Kernels:
                      loading):
         """Add a contact's stressing work to each breakable side's event and E_k (spec 5.4)."""
         if self.breakable[a]:
-            self._side_work(pool, table.event_a, table.work_a, c, i,
-                            self.pair[a, b, COL["stiffness_partition"]], work, loading)
+            table.stress_i[c] = self._side_work(pool, table.event_a, table.work_a, c, i,
+                                                self.pair[a, b, COL["stiffness_partition"]],
+                                                work, loading)
         if self.breakable[b]:
-            self._side_work(pool, table.event_b, table.work_b, c, j,
-                            self.pair[b, a, COL["stiffness_partition"]], work, loading)
+            table.stress_j[c] = self._side_work(pool, table.event_b, table.work_b, c, j,
+                                                self.pair[b, a, COL["stiffness_partition"]],
+                                                work, loading)
 
     @ti.func
     def _side_work(self, pool: ti.template(), event_f: ti.template(), work_f: ti.template(), c,
                    i, share, work, loading):
-        """One side of :meth:`_stress_work`: particle i with its share of the contact work."""
+        """One side of :meth:`_stress_work`: particle i with its share of the contact work
+        (returned; the gather adds it to ``stress_sum``)."""
         ev = pool.event_id[i]
         if event_f[c] != ev:  # the particle closed an event since: start afresh
             event_f[c] = ev
             work_f[c] = 0.0
         w = work_f[c] + work
         work_f[c] = w
-        pool.stress_sum[i] += share * w
         if loading:
             pool.loading[i] = 1
+        return share * w
 
     @ti.func
     def _bank(self, pool: ti.template(), table: ti.template(), c, i, j):
@@ -506,7 +609,7 @@ class Kernels:
             k1 = eepa_loading_stiffness(tab[a, b, COL["e_star"]], r_star, n)
             k2 = k1 / (1.0 - lam)
             dmax = ti.max(delta_max, delta)
-            delta_p = eepa_plastic_overlap(dmax, lam, n)
+            delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
             k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
                                             tab[a, b, COL["adhesion_stiffness"]], n, chi,
                                             ti.static(self.adhesion_mode))

@@ -469,7 +469,8 @@ def _lammps_density(packing: Packing,
 
 
 def write_lammps_data(path: PathLike, packing: Packing,
-                      density_by_material: Mapping[int, float] | None = None) -> Path:
+                      density_by_material: Mapping[int, float] | None = None,
+                      atom_types: int | None = None) -> Path:
     """Write ``packing`` as a LAMMPS data file for ``atom_style granular``, atomically.
 
     Read it in LAMMPS with ``units si``, ``atom_style granular``, ``boundary p p f`` and
@@ -481,6 +482,8 @@ def write_lammps_data(path: PathLike, packing: Packing,
         packing: the packing to write; its ids must be >= 1 (LAMMPS atom IDs).
         density_by_material: ``{material index: density [kg/m^3]}``, used when
             ``packing.density`` is None.
+        atom_types: number of atom types to declare (default ``max(2, max material + 1)``);
+            more leaves types free for walls (LIGGGHTS meshes need a type of their own).
 
     Returns:
         The written path.
@@ -494,6 +497,10 @@ def write_lammps_data(path: PathLike, packing: Packing,
         raise _invalid(f"ids[{bad[0]}]", packing.ids[bad[0]].item(),
                        "integers >= 1 (LAMMPS atom IDs)")
     ntypes = max(2, int(packing.material.max()) + 1) if packing.n else 2
+    if atom_types is not None:
+        if int(atom_types) < ntypes:
+            raise _invalid("atom_types", atom_types, f"an integer >= {ntypes} (the materials)")
+        ntypes = int(atom_types)
 
     def lines() -> Iterator[str]:
         yield f"{_LAMMPS_TITLE}\n\n{packing.n} atoms\n{ntypes} atom types\n\n"

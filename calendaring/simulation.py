@@ -11,11 +11,15 @@ Typical use::
     sim.run(10_000)
     print(sim.top_pressure(), sim.energy())
 
-Order of one step (spec 5.11): kick + drift + plate contacts, every
-``rebuild_check_interval`` steps a host check of the device flags (guards and the Verlet
-rebuild trigger), pair contacts, bonds, then breakage (stressing energy, events, damage; when
-some particle breaks, its replacement by fragments, a neighbour rebuild and the forces of the
-step recomputed, see :mod:`calendaring.breakage_kernels`). The time step is
+Order of one step (spec 5.11), all in one kernel launch (``Kernels.step``): kick + drift +
+plate contacts, pair contacts (written per pair, then summed per particle without atomics:
+the result does not depend on the thread count), bonds, then the breakage test (stressing
+energy, events, damage). Back on the host: every ``rebuild_check_interval`` steps the
+device flags are acted on (a guard stops the run; the Verlet rebuild trigger rebuilds the
+candidate list before the next step: the list stays valid until a particle moved skin/2,
+which is a guard), and when some particle broke, its replacement by fragments, a
+neighbour rebuild and the forces of the step recomputed (see
+:mod:`calendaring.breakage_kernels`). The time step is
 ``timestep_fraction`` x the Rayleigh time of the smallest particle (``calendaring.timestep``),
 and with breakage at most ``breakage.fragment_timestep_fraction`` x the Rayleigh time of the
 smallest fragment; it is fixed when the run starts.
@@ -189,6 +193,7 @@ class Simulation:
             total = self.table.count_candidates(self.pool, self.grid, skin)
         self.table.fill_candidates(self.pool, self.grid, skin)
         self.table.remap_history(self.pool)
+        self.table.build_incoming(self.pool)
         self.table.reset_displacements(self.pool)
         self.kernels.need_rebuild[None] = 0
         self.n_rebuilds += 1
@@ -203,6 +208,7 @@ class Simulation:
     def _pairs(self, dt: float) -> None:
         self.kernels.pair_forces(self.pool, self.table, self.grid, dt,
                                  self.cfg.numerics.max_overlap_fraction, self.step_count)
+        self.kernels.gather_pair_forces(self.pool, self.table)
         if self.bonds is not None:
             d = self.cfg.domain
             self.bonds.update(self.pool, dt, d.cell_x, d.cell_y, self.step_count)
@@ -226,11 +232,6 @@ class Simulation:
         if self._fracture_init_upto < self.pool.slots_used:
             self.breakage.init_particles(self.pool, self._fracture_init_upto)
             self._fracture_init_upto = self.pool.slots_used
-
-    def _breakage_step(self) -> None:
-        n = self.breakage.events(self.pool)
-        if n > 0:
-            self._replace(n)
 
     def _stored_energy(self) -> tuple[float, float]:
         """(kinetic + rotational + gravity + contact elastic, contact elastic) [J]; the bonds
@@ -322,11 +323,22 @@ class Simulation:
         if not self._primed:
             self.prime()
         interval = self.check_interval
+        d = self.cfg.domain
+        half_skin = 0.5 * self.cfg.numerics.skin
+        max_overlap = self.cfg.numerics.max_overlap_fraction
+        step_kernel = self.kernels.step
         for _ in range(int(n_steps)):
             self._update_plate()
             kick = 0.5 if self._first_kick else 1.0
             self._first_kick = False
-            self._advance(kick, 1.0)
+            # advance, pair forces and their gather in one launch; the candidate list is
+            # valid while no particle moved more than skin/2 (the guard), so a rebuild
+            # flagged by this step's drift is done after its forces, before the next step
+            breakage = self.breakage if self.breakage_active else None
+            flags = step_kernel(self.pool, self.table, self.grid, self.bonds, breakage, kick,
+                                self.dt, self.gravity, self.z_bottom, self.z_top, self.v_top,
+                                d.cell_x, d.cell_y, half_skin, self.step_count, self._trace_n,
+                                max_overlap)
             self.step_count += 1
             self.time += self.dt
             self._trace_z[self._trace_n] = self.z_top
@@ -335,12 +347,12 @@ class Simulation:
             if self._trace_n == TRACE_LEN:
                 self._flush_trace()
             if self.step_count % interval == 0:
-                self.check()
-                if self.kernels.need_rebuild[None]:
+                if flags & 3:
+                    self.check()
+                if flags & 4:
                     self.rebuild()
-            self._pairs(self.dt)
-            if self.breakage is not None and self.breakage_active:
-                self._breakage_step()
+            if flags >> 3:
+                self._replace(flags >> 3)
             if callback is not None and callback_interval and self.step_count % callback_interval == 0:
                 callback(self)
         self.check()
@@ -369,7 +381,7 @@ class Simulation:
         d = self.cfg.domain
         sa, sb, ia, ib, rb = make_bonds(self.cfg.bonds, live, slots, self.material_names,
                                         d.cell_x, d.cell_y)
-        self.bonds = BondTable(self.cfg.bonds, len(sa))
+        self.bonds = BondTable(self.cfg.bonds, len(sa), serial=self.kernels.serial)
         self.bonds.set_bonds(sa, sb, ia, ib, rb)
         return len(sa)
 
@@ -543,6 +555,7 @@ class Simulation:
             if name not in ("n_pairs", "capacity"):
                 getattr(self.table, name).from_numpy(np.asarray(arr))
         self.table.n_pairs[None] = int(tab["n_pairs"])
+        self.table.build_incoming(self.pool)
         self.kernels.ledger.from_numpy(np.asarray(state["ledger"], float))
         self.kernels.need_rebuild[None] = int(state["need_rebuild"])
         sched = state["schedule"]
@@ -551,7 +564,8 @@ class Simulation:
             self.bonds.destroy()
             self.bonds = None
         if state["bonds"] is not None:
-            self.bonds = BondTable(self.cfg.bonds, max(1, int(state["bonds"]["n_bonds"])))
+            self.bonds = BondTable(self.cfg.bonds, max(1, int(state["bonds"]["n_bonds"])),
+                                   serial=self.kernels.serial)
             self.bonds.load(state["bonds"])
         self._trace_n = 0
         self._traced = [np.asarray(state["trace"])] if len(state["trace"]) else []

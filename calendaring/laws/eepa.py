@@ -114,6 +114,8 @@ def eepa_damping_coefficient(m_star, k1, delta, beta_hat, n: ti.template(), mode
         beta = 2.0 * beta_hat * ti.sqrt(m_star * k1)
     elif ti.static(n == 1.0):
         beta = 2.0 * beta_hat * ti.sqrt(m_star * k1)
+    elif ti.static(n == 1.5):  # k_eff = 1.5 k1 delta^0.5 without a pow call
+        beta = 2.0 * ti.sqrt(5.0 / 6.0) * beta_hat * ti.sqrt(m_star * 1.5 * k1 * ti.sqrt(delta))
     else:
         k_eff = n * k1 * ti.pow(delta, n - 1.0)
         beta = 2.0 * ti.sqrt(5.0 / 6.0) * beta_hat * ti.sqrt(m_star * k_eff)
