@@ -38,10 +38,12 @@ def prepare_dense_bed(cfg, n_am: int, n_cb: int, porosity: float, seed: int = 0,
     return compact_bed(cfg, diam, mat, porosity, rng, prep_speed)
 
 
-def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0):
+def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0,
+                hold_steps: int = 0):
     """Random sequential insertion of the spheres ``diam`` (materials ``mat``) in a column
     three times the dense height, then pre-compaction by the top plate at ``prep_speed``
-    with a coarse (20 %) Rayleigh step down to ``porosity``, breakage off (untimed).
+    with a coarse (20 %) Rayleigh step down to ``porosity``, breakage off (untimed); then
+    ``hold_steps`` steps with the plate held, so that the bed comes to rest under load.
 
     Returns (positions, radii, materials, velocities, plate height).
     """
@@ -66,6 +68,9 @@ def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0):
         n = int(np.ceil((z0 - z_dense) / (prep_speed * sim.dt)))
         sim.set_top_plate_history([0.0, n * sim.dt], [z0, z_dense])
         sim.run(n)
+        if hold_steps:
+            sim.set_top_plate(z=z_dense, velocity=0.0)
+            sim.run(hold_steps)
         s = sim.state()
         return s["position"], s["radius"], s["material"], s["velocity"], sim.z_top
     finally:

@@ -90,8 +90,8 @@ def init_taichi(
         debug=debug,
         log_level=ti.WARN,
     )
-    if threads:
-        kwargs["cpu_max_num_threads"] = threads
+    if arch != "cuda":
+        kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)
     ti.init(**kwargs)
     actual = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
     if arch == "cuda" and actual != "cuda":
@@ -101,6 +101,19 @@ def init_taichi(
                        cache_dir=cache)
     _STATE["settings"] = (key, info)
     return info
+
+
+def cpu_pool_threads(threads: int) -> int:
+    """Taichi CPU worker threads for ``threads`` cores (0 = every core).
+
+    One thread for one core (whose per-step loops run serialised, see
+    :class:`calendaring.forces.Kernels`); two per core otherwise: the step's loops last
+    well under a millisecond, and with one worker per core a worker that is still asleep
+    when the loop starts leaves its core idle (measured on a 2-core VM, 5,165 particles:
+    2 workers kept 1.2 cores busy, 790 steps/s; 4 workers 1.5 cores, 1,125 steps/s).
+    """
+    cores = threads or (os.cpu_count() or 1)
+    return 1 if cores == 1 else 2 * cores
 
 
 def current_backend() -> BackendInfo | None:

@@ -88,10 +88,13 @@ class BondTable:
         capacity: number of bonds the table holds.
     """
 
-    def __init__(self, cfg: BondsConfig, capacity: int, serial: bool = False) -> None:
+    def __init__(self, cfg: BondsConfig, capacity: int, serial: bool = False,
+                 particle_capacity: int = 0) -> None:
         self.cfg = cfg
         self.serial = bool(serial)  # run the per-step loop without the thread pool
         self.capacity = max(1, int(capacity))
+        # > 0: per-particle bond lists for the engine's gather (see :meth:`_update_all`)
+        self.particle_capacity = int(particle_capacity)
         self.abs_mode = cfg.normal_criterion == "abs"
         fb = ti.FieldsBuilder()
         self.slot_a = ti.field(ti.i32)
@@ -108,6 +111,20 @@ class BondTable:
         for f in (self.slot_a, self.slot_b, self.id_a, self.id_b, self.radius, self.state,
                   self.break_step, self.f_n, self.m_n, self.f_t, self.m_t):
             fb.dense(ti.i, self.capacity).place(f)
+        # this step's loads of each bond (written when the gather applies them)
+        self.active = ti.field(ti.i32)  # 1: the bond loaded its particles this step
+        self.load_force = ti.Vector.field(3, ti.f64)  # force on A [N]
+        self.load_torque_a = ti.Vector.field(3, ti.f64)  # torque on A [N m]
+        self.load_torque_b = ti.Vector.field(3, ti.f64)  # torque on B [N m]
+        for f in (self.active, self.load_force, self.load_torque_a, self.load_torque_b):
+            fb.dense(ti.i, self.capacity).place(f)
+        # per particle slot, its bonds: entry b (it is A) or -b - 1 (it is B), by bond index
+        self.list_start = ti.field(ti.i32)
+        self.list_count = ti.field(ti.i32)
+        self.list_entry = ti.field(ti.i32)
+        if self.particle_capacity:
+            fb.dense(ti.i, self.particle_capacity).place(self.list_start, self.list_count)
+            fb.dense(ti.i, 2 * self.capacity).place(self.list_entry)
         self.n_bonds = ti.field(ti.i32)
         self.released = ti.field(ti.f64)  # elastic energy lost by failed/removed bonds [J]
         fb.place(self.n_bonds, self.released)
@@ -150,6 +167,26 @@ class BondTable:
             getattr(self, name).from_numpy(full[name])
         self.n_bonds[None] = k
         self.released[None] = float(arrays["released"])
+        if self.particle_capacity:
+            self._build_lists(full["slot_a"][:k], full["slot_b"][:k])
+
+    def _build_lists(self, slot_a: np.ndarray, slot_b: np.ndarray) -> None:
+        """Per-slot bond lists (bonds never change slots: they are made once)."""
+        k = len(slot_a)
+        slots = np.concatenate([slot_a, slot_b]).astype(np.int64)
+        if k and slots.max() >= self.particle_capacity:
+            raise ValueError(f"bond slot {slots.max()} >= particle capacity "
+                             f"{self.particle_capacity}")
+        index = np.concatenate([np.arange(k), np.arange(k)])
+        entry = np.concatenate([np.arange(k), -np.arange(k) - 1]).astype(np.int32)
+        order = np.lexsort((index, slots))
+        count = np.bincount(slots, minlength=self.particle_capacity).astype(np.int32)
+        start = (np.cumsum(count) - count).astype(np.int32)
+        full = np.zeros(2 * self.capacity, np.int32)
+        full[:2 * k] = entry[order]
+        self.list_entry.from_numpy(full)
+        self.list_start.from_numpy(start)
+        self.list_count.from_numpy(count)
 
     def to_numpy(self) -> dict:
         """Every bond array for the bonds in use, plus ``n_bonds`` and ``released``."""
@@ -168,16 +205,25 @@ class BondTable:
     @ti.kernel
     def update(self, pool: ti.template(), dt: ti.f64, lx: ti.f64, ly: ti.f64, step: ti.i32):
         """Increment every intact bond, apply its loads, check failure (one step)."""
-        self._update_all(pool, dt, lx, ly, step)
+        self._update_all(pool, dt, lx, ly, step, True)
+
+    @ti.kernel
+    def compute(self, pool: ti.template(), dt: ti.f64, lx: ti.f64, ly: ti.f64, step: ti.i32):
+        """:meth:`update` storing the loads per bond for the engine's gather."""
+        self._update_all(pool, dt, lx, ly, step, False)
 
     @ti.func
-    def _update_all(self, pool: ti.template(), dt, lx, ly, step):
+    def _update_all(self, pool: ti.template(), dt, lx, ly, step, apply: ti.template()):
+        """The bond step. ``apply``: add the loads to the particles here (atomic adds);
+        otherwise store them per bond (``active``, ``load_*``) for the engine's per-particle
+        gather, which sums them in a fixed order."""
         sn = ti.static(self.cfg.normal_stiffness)
         st = ti.static(self.cfg.shear_stiffness)
         sig_c = ti.static(self.cfg.normal_strength)
         tau_c = ti.static(self.cfg.shear_strength)
         ti.loop_config(serialize=self.serial)
         for b in range(self.n_bonds[None]):
+            self.active[b] = 0
             if self.state[b] == INTACT:
                 i = self.slot_a[b]
                 j = self.slot_b[b]
@@ -186,10 +232,12 @@ class BondTable:
                     self.state[b] = REMOVED
                     self.break_step[b] = step
                 else:
-                    self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step)
+                    self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step,
+                                     apply)
 
     @ti.func
-    def _update_one(self, pool: ti.template(), b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step):
+    def _update_one(self, pool: ti.template(), b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step,
+                    apply: ti.template()):
         d = pool.position[j] - pool.position[i]
         d[0] -= lx * ti.round(d[0] / lx)
         d[1] -= ly * ti.round(d[1] / ly)
@@ -233,10 +281,16 @@ class BondTable:
             else:
                 force_i = -f_n * nrm + f_t
                 moment_i = m_n * nrm + m_t
-                pool.force[i] += force_i
-                pool.force[j] -= force_i
-                pool.torque[i] += moment_i + arm_i.cross(f_t)
-                pool.torque[j] += -moment_i - arm_j.cross(f_t)
+                if ti.static(apply):
+                    pool.force[i] += force_i
+                    pool.force[j] -= force_i
+                    pool.torque[i] += moment_i + arm_i.cross(f_t)
+                    pool.torque[j] += -moment_i - arm_j.cross(f_t)
+                else:
+                    self.active[b] = 1
+                    self.load_force[b] = force_i
+                    self.load_torque_a[b] = moment_i + arm_i.cross(f_t)
+                    self.load_torque_b[b] = -moment_i - arm_j.cross(f_t)
 
     @ti.func
     def _stored(self, b):

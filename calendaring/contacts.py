@@ -20,8 +20,7 @@ pair's own slots (``touch``, ``pair_force``, ``pair_nft``, arms, rolling and str
 terms), then one loop over particles sums, for particle ``i``, its own segment and its
 incoming list (``in_start``/``in_count``/``in_pair``: the pairs whose partner is ``i``, in
 increasing pair order, built at every rebuild). No two threads write the same particle, so
-the sums need no atomic adds and their order, hence the result, does not depend on the
-number of threads.
+the sums need no atomic adds and their order does not depend on the number of threads.
 
 Capacity: the pair count is computed before filling; if it exceeds the capacity the host
 grows the table (copying the history) and rebuilds, never truncating.

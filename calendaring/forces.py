@@ -74,6 +74,11 @@ class Kernels:
         # one thread: the per-step loops run serialised, without the thread pool's dispatch
         # (about 45 us per parallel loop on a 2-core x86 VM, more than a small bed's work)
         self.serial = int(cfg.numerics.threads) == 1
+        # The candidate list is rebuilt once some particle moved this fraction of skin/2
+        # since the last build (skin/2 itself is the guard: beyond it a contact could be
+        # missed). Flags read every step leave one step of travel to cover: 0.8; read every
+        # k > 1 steps, k steps: 0.5.
+        self.rebuild_fraction = 0.8 if cfg.numerics.rebuild_check_interval == 1 else 0.5
         # stressing-work bookkeeping of the breakage model (spec 5.4), compiled in only when
         # some material can break
         self.breakage = breakage_enabled(cfg)
@@ -201,18 +206,19 @@ class Kernels:
              ly: ti.f64, half_skin: ti.f64, step: ti.i32, trace_slot: ti.i32,
              max_overlap_fraction: ti.f64) -> ti.i32:
         """One whole time step in one launch (each top-level loop is still its own parallel
-        task): :meth:`advance` (drift 1) to step ``step + 1``, :meth:`pair_forces` and
-        :meth:`gather_pair_forces` over the current candidate list, then the bonds'
-        update and the breakage test when ``bonds`` / ``breakage`` are not None.
+        task): :meth:`advance` (drift 1) to step ``step + 1``, :meth:`pair_forces` over the
+        current candidate list, the bonds' update (``bonds`` not None; loads stored per
+        bond), the per-particle gather of pair and bond loads, then the breakage test
+        (``breakage`` not None).
 
         Returns :meth:`flags` plus 8 x the number of parents to replace this step.
         """
         self._advance_all(pool, kick, 1.0, dt, gravity, z_bottom, z_top, v_top, lx, ly,
                           half_skin, step, trace_slot)
         self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step + 1)
-        self._gather_all(pool, table)
         if ti.static(bonds != None):  # noqa: E711 (a compile-time test in Taichi scope)
-            bonds._update_all(pool, dt, lx, ly, step + 1)
+            bonds._update_all(pool, dt, lx, ly, step + 1, False)
+        self._gather_all(pool, table, bonds)
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
             n_break = breakage._events_all(pool)
@@ -294,7 +300,7 @@ class Kernels:
         r = pool.radius[i]
         if not (ti.math.isinf(x).any() or ti.math.isnan(x).any() or ti.math.isnan(v).any()):
             d2 = disp.norm_sqr()
-            if d2 > 0.25 * half_skin * half_skin:
+            if d2 > ti.static(self.rebuild_fraction**2) * half_skin * half_skin:
                 self.need_rebuild[None] = 1
                 if d2 > half_skin * half_skin:
                     self._flag(GUARD_SKIN, i, step, ti.sqrt(d2))
@@ -390,13 +396,17 @@ class Kernels:
                 self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
 
     @ti.kernel
-    def gather_pair_forces(self, pool: ti.template(), table: ti.template()):
+    def gather_pair_forces(self, pool: ti.template(), table: ti.template(),
+                           bonds: ti.template()):
         """Add this step's pair contributions to each particle: its own segment, then its
-        incoming pairs (no atomics: one thread per particle, fixed order)."""
-        self._gather_all(pool, table)
+        incoming pairs, then (``bonds`` not None) the loads its bonds stored with
+        ``BondTable.compute`` (no atomics: one thread per particle, fixed order)."""
+        self._gather_all(pool, table, bonds)
 
     @ti.func
-    def _gather_all(self, pool: ti.template(), table: ti.template()):
+    def _gather_all(self, pool: ti.template(), table: ti.template(), bonds: ti.template()):
+        """Per particle: its pairs' contributions, then (``bonds`` not None) its bonds'
+        loads stored by ``BondTable._update_all(apply=False)``."""
         ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
@@ -426,13 +436,26 @@ class Kernels:
                         st += table.stress_j[c]
                         nc += 1
                 if nc > 0:
-                    pool.force[i] = pool.force[i] + f
-                    pool.torque[i] = pool.torque[i] + t
                     pool.roll_magnitude[i] = pool.roll_magnitude[i] + roll
                     pool.normal_force_sum[i] = pool.normal_force_sum[i] + fn
                     pool.n_contacts[i] = pool.n_contacts[i] + nc
                     if ti.static(self.breakage):
                         pool.stress_sum[i] = pool.stress_sum[i] + st
+                if ti.static(bonds != None):  # noqa: E711
+                    lo = bonds.list_start[i]
+                    for k in range(lo, lo + bonds.list_count[i]):
+                        e = bonds.list_entry[k]
+                        if e >= 0:
+                            if bonds.active[e]:
+                                f += bonds.load_force[e]
+                                t += bonds.load_torque_a[e]
+                        else:
+                            b = -e - 1
+                            if bonds.active[b]:
+                                f -= bonds.load_force[b]
+                                t += bonds.load_torque_b[b]
+                pool.force[i] = pool.force[i] + f
+                pool.torque[i] = pool.torque[i] + t
 
     @ti.func
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,

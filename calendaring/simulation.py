@@ -12,9 +12,11 @@ Typical use::
     print(sim.top_pressure(), sim.energy())
 
 Order of one step (spec 5.11), all in one kernel launch (``Kernels.step``): kick + drift +
-plate contacts, pair contacts (written per pair, then summed per particle without atomics:
-the result does not depend on the thread count), bonds, then the breakage test (stressing
-energy, events, damage). Back on the host: every ``rebuild_check_interval`` steps the
+plate contacts, pair contacts and bonds (each writes its loads in its own slot; one loop
+over particles then sums them in a fixed order, without atomic adds on the particle loads;
+plate forces, the energy ledger, stressing work banked by ending contacts and the order of
+simultaneous breakage events still use atomics, so runs on different thread counts agree
+to rounding, not bit for bit), then the breakage test (stressing energy, events, damage). Back on the host: every ``rebuild_check_interval`` steps the
 device flags are acted on (a guard stops the run; the Verlet rebuild trigger rebuilds the
 candidate list before the next step: the list stays valid until a particle moved skin/2,
 which is a guard), and when some particle broke, its replacement by fragments, a
@@ -208,10 +210,10 @@ class Simulation:
     def _pairs(self, dt: float) -> None:
         self.kernels.pair_forces(self.pool, self.table, self.grid, dt,
                                  self.cfg.numerics.max_overlap_fraction, self.step_count)
-        self.kernels.gather_pair_forces(self.pool, self.table)
         if self.bonds is not None:
             d = self.cfg.domain
-            self.bonds.update(self.pool, dt, d.cell_x, d.cell_y, self.step_count)
+            self.bonds.compute(self.pool, dt, d.cell_x, d.cell_y, self.step_count)
+        self.kernels.gather_pair_forces(self.pool, self.table, self.bonds)
 
     def _ensure_breakage(self) -> None:
         """Breakage kernels sized for the largest breakable particle; fracture energies of
@@ -381,7 +383,8 @@ class Simulation:
         d = self.cfg.domain
         sa, sb, ia, ib, rb = make_bonds(self.cfg.bonds, live, slots, self.material_names,
                                         d.cell_x, d.cell_y)
-        self.bonds = BondTable(self.cfg.bonds, len(sa), serial=self.kernels.serial)
+        self.bonds = BondTable(self.cfg.bonds, len(sa), serial=self.kernels.serial,
+                               particle_capacity=self.pool.capacity)
         self.bonds.set_bonds(sa, sb, ia, ib, rb)
         return len(sa)
 
@@ -565,7 +568,8 @@ class Simulation:
             self.bonds = None
         if state["bonds"] is not None:
             self.bonds = BondTable(self.cfg.bonds, max(1, int(state["bonds"]["n_bonds"])),
-                                   serial=self.kernels.serial)
+                                   serial=self.kernels.serial,
+                                   particle_capacity=self.pool.capacity)
             self.bonds.load(state["bonds"])
         self._trace_n = 0
         self._traced = [np.asarray(state["trace"])] if len(state["trace"]) else []

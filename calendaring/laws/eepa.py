@@ -88,13 +88,17 @@ def eepa_adhesion_stiffness(delta_p, r_star, k2, surface_energy, kadh_direct,
             f_pull = 1.5 * math.pi * surface_energy * ti.sqrt(r_star * delta_p)
         else:
             f_pull = 1.5 * math.pi * surface_energy * r_star
-        reach = k2 * power_n(delta_p, n)
+        dpn = power_n(delta_p, n)
+        reach = k2 * dpn
         # Capped case F_pull >= k2 delta_p^n: delta_min = 0 and k_adh = 0 (spec 2.3). It is
         # tested directly: delta_p^n - F_pull/k2 can round to a tiny positive number and give
         # a huge k_adh (an adhesive force persisting down to delta -> 0).
         if f_pull > 0.0 and f_pull < reach * (1.0 - 1e-9):
-            delta_min = ti.pow(power_n(delta_p, n) - f_pull / k2, 1.0 / n)
-            k_adh = f_pull / power_n(delta_min, chi)
+            if ti.static(chi == n):  # delta_min^chi = delta_min^n: no root to take
+                k_adh = f_pull / (dpn - f_pull / k2)
+            else:
+                delta_min = ti.pow(dpn - f_pull / k2, 1.0 / n)
+                k_adh = f_pull / power_n(delta_min, chi)
     return k_adh
 
 
