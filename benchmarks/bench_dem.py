@@ -325,6 +325,14 @@ def cmd_versus(args) -> dict:
             np.savez(bed, pos=pos, rad=rad, mat=mat, z_top=z_top)
     prep = time.perf_counter() - t0
     cfg = hertz_config(cfg, args.threads, skin)  # the same neighbour skin as LIGGGHTS'
+    if args.rolling_friction is not None:
+        from calendaring.config import with_overrides
+
+        over = {f"contact.pairs.{k}.rolling_friction": args.rolling_friction
+                for k in cfg.contact.pairs}
+        over.update({f"contact.plate_pairs.{k}.rolling_friction": args.rolling_friction
+                     for k in cfg.contact.plate_pairs})
+        cfg = with_overrides(cfg, over)
     print(f"[versus] bed: {len(rad)} spheres ({int(np.sum(mat == 0))} AM, "
           f"{int(np.sum(mat == 1))} CB), plate at {z_top * 1e6:.2f} um, built in {prep:.0f} s",
           flush=True)
@@ -343,7 +351,8 @@ def cmd_versus(args) -> dict:
         args.liggghts or shutil.which("liggghts") or shutil.which("lmp_serial"))
     peer = None
     result = {"benchmark": "bench_dem versus", "preset": "paper (Hertz-Mindlin reduction)",
-              "speed_m_s": args.speed, "seed": args.seed, "bed_build_s": prep}
+              "speed_m_s": args.speed, "seed": args.seed, "bed_build_s": prep,
+              "rolling_friction": args.rolling_friction}
     if binary is None:
         print("[versus] LIGGGHTS off or not found (Debian package 'liggghts'): our figures "
               "alone")
@@ -568,6 +577,8 @@ def main(argv=None) -> int:
                    help="LIGGGHTS neighbour skin [m] (the reference input's)")
     v.add_argument("--skin", type=float, default=None,
                    help="our Verlet skin [m] (default: the same as --liggghts-skin)")
+    v.add_argument("--rolling-friction", type=float, default=None,
+                   help="rolling friction of every pair in both codes (default: the paper's)")
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--porosity", type=float, default=0.33,
                    help="porosity of the loaded bed both codes start from")
