@@ -211,7 +211,8 @@ class Kernels:
         bond), the per-particle gather of pair and bond loads, then the breakage test
         (``breakage`` not None).
 
-        Returns :meth:`flags` plus 8 x the number of parents to replace this step.
+        Returns the device flags (:meth:`_flags`) plus 8 x the number of parents to
+        replace this step.
         """
         self._advance_all(pool, kick, 1.0, dt, gravity, z_bottom, z_top, v_top, lx, ly,
                           half_skin, step, trace_slot)
@@ -237,14 +238,10 @@ class Kernels:
         self.trace[trace_slot, 0] = self.plate_force[0][2]
         self.trace[trace_slot, 1] = self.plate_force[1][2]
 
-    @ti.kernel
-    def flags(self, pool: ti.template()) -> ti.i32:
-        """The device flags in one launch: 1 pool overflow, 2 a guard fired, 4 the
-        neighbour list needs a rebuild."""
-        return self._flags(pool)
-
     @ti.func
     def _flags(self, pool: ti.template()):
+        """The device flags: 1 pool overflow, 2 a guard fired, 4 the neighbour list needs a
+        rebuild."""
         out = 0
         if pool.overflow[None] != 0:
             out |= 1
