@@ -307,6 +307,21 @@ def plot_versus(path: Path, ours: np.ndarray, peer: np.ndarray | None, area: flo
     plt.close(fig)
 
 
+def repeat_median(run, n: int, label: str) -> dict:
+    """Call ``run()`` (a dict with steps_per_s and particles) ``n`` times; the last result
+    with the median rate over the runs (the machine is noisy) and every run's rate."""
+    rates, out = [], None
+    for k in range(n):
+        out = run()
+        rates.append(out["steps_per_s"])
+        print(f"[versus] {label}, run {k + 1}/{n}: {out['steps_per_s']:.0f} steps/s "
+              f"({out['particle_steps_per_s']:.3g} particle-steps/s)", flush=True)
+    out["steps_per_s_runs"] = rates
+    out["steps_per_s"] = float(np.median(rates))
+    out["particle_steps_per_s"] = out["steps_per_s"] * out["particles"]
+    return out
+
+
 def cmd_versus(args) -> dict:
     from calendaring.backend import init_taichi
     from calendaring.config import load_preset
@@ -336,16 +351,8 @@ def cmd_versus(args) -> dict:
     print(f"[versus] bed: {len(rad)} spheres ({int(np.sum(mat == 0))} AM, "
           f"{int(np.sum(mat == 1))} CB), plate at {z_top * 1e6:.2f} um, built in {prep:.0f} s",
           flush=True)
-    ours, our_rates = None, []
-    for k in range(args.repeat):
-        ours = run_ours(cfg, pos, rad, mat, z_top, args.speed, args.steps)
-        our_rates.append(ours["steps_per_s"])
-        print(f"[versus] calendaring run {k + 1}/{args.repeat}: {ours['steps_per_s']:.0f} "
-              f"steps/s ({ours['particle_steps_per_s']:.3g} particle-steps/s) on "
-              f"{args.threads} threads", flush=True)
-    ours["steps_per_s_runs"] = our_rates
-    ours["steps_per_s"] = float(np.median(our_rates))
-    ours["particle_steps_per_s"] = ours["steps_per_s"] * ours["particles"]
+    ours = repeat_median(lambda: run_ours(cfg, pos, rad, mat, z_top, args.speed, args.steps),
+                         args.repeat, f"calendaring on {args.threads} threads")
     area = cfg.domain.cell_x * cfg.domain.cell_y
     binary = None if args.liggghts == "off" else (
         args.liggghts or shutil.which("liggghts") or shutil.which("lmp_serial"))
@@ -358,25 +365,19 @@ def cmd_versus(args) -> dict:
               "alone")
         result["liggghts"] = None
     else:
-        peer_rates = []
-        for k in range(args.repeat):
+        def liggghts_once() -> dict:
             folder = Path(tempfile.mkdtemp(prefix="bench-liggghts-"))
             try:
                 liggghts_files(folder, cfg, pos, rad, mat, z_top, ours["dt_s"], args.speed,
                                args.steps, args.liggghts_skin)
-                peer = run_liggghts(folder, binary, args.np, args.steps)
+                return run_liggghts(folder, binary, args.np, args.steps)
             finally:
                 if args.keep:
                     print(f"[versus] LIGGGHTS files kept in {folder}")
                 else:
                     shutil.rmtree(folder, ignore_errors=True)
-            peer_rates.append(peer["steps_per_s"])
-            print(f"[versus] LIGGGHTS run {k + 1}/{args.repeat}: {peer['steps_per_s']:.0f} "
-                  f"steps/s ({peer['particle_steps_per_s']:.3g} particle-steps/s) on "
-                  f"{peer['ranks']} MPI ranks", flush=True)
-        peer["steps_per_s_runs"] = peer_rates
-        peer["steps_per_s"] = float(np.median(peer_rates))
-        peer["particle_steps_per_s"] = peer["steps_per_s"] * peer["particles"]
+
+        peer = repeat_median(liggghts_once, args.repeat, f"LIGGGHTS on {args.np} MPI ranks")
         result["liggghts"] = {k: v for k, v in peer.items() if k != "force"}
         result["liggghts"]["skin_m"] = args.liggghts_skin
         result["ratio_steps_per_s"] = ours["steps_per_s"] / peer["steps_per_s"]

@@ -389,14 +389,11 @@ class BreakageKernels:
         pool.wall_work_top[i] = 0.0
         pool.peak_load[i] = 0.0
 
-    @ti.kernel
-    def events(self, pool: ti.template()) -> ti.i32:
-        """Stressing energy, events, damage and the breakage test; returns the number of
-        parents to replace this step."""
-        return self._events_all(pool)
-
     @ti.func
     def _events_all(self, pool: ti.template()):
+        """Stressing energy, events, damage and the breakage test of every breakable
+        particle (called by ``Kernels.step``); returns the number of parents to replace
+        this step."""
         self.n_break[None] = 0
         ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):

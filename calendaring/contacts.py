@@ -37,6 +37,18 @@ HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delt
 PAIR_I32 = ("event_a", "event_b", "sibling")  # all history
 
 
+@ti.func
+def _exclusive_scan(count: ti.template(), start: ti.template(), total: ti.template(), n):
+    """start[i] = count[0] + ... + count[i - 1] for i < n, total = the whole sum (serial:
+    called at a kernel's top level, it is one serial task)."""
+    ti.loop_config(serialize=True)
+    for i in range(n):
+        if i == 0:
+            total[None] = 0
+        start[i] = total[None]
+        total[None] += count[i]
+
+
 @ti.data_oriented
 class ContactTable:
     """Candidate pairs and their contact history.
@@ -183,12 +195,7 @@ class ContactTable:
             if pool.alive[i]:
                 n = self._visit(pool, grid, i, skin, False)
             self.seg_count[i] = n
-        ti.loop_config(serialize=True)
-        for i in range(pool.n_slots[None]):
-            if i == 0:
-                self.required[None] = 0
-            self.seg_start[i] = self.required[None]
-            self.required[None] += self.seg_count[i]
+        _exclusive_scan(self.seg_count, self.seg_start, self.required, pool.n_slots[None])
         return self.required[None]
 
     @ti.kernel
@@ -230,12 +237,7 @@ class ContactTable:
             self.in_count[i] = 0
         for c in range(self.n_pairs[None]):
             ti.atomic_add(self.in_count[self.partner[c]], 1)
-        ti.loop_config(serialize=True)
-        for i in range(pool.n_slots[None]):
-            if i == 0:
-                self.in_total[None] = 0
-            self.in_start[i] = self.in_total[None]
-            self.in_total[None] += self.in_count[i]
+        _exclusive_scan(self.in_count, self.in_start, self.in_total, pool.n_slots[None])
         for i in range(pool.n_slots[None]):
             self.in_cursor[i] = self.in_start[i]
         for c in range(self.n_pairs[None]):

@@ -16,12 +16,12 @@ plate contacts, pair contacts and bonds (each writes its loads in its own slot; 
 over particles then sums them in a fixed order, without atomic adds on the particle loads;
 plate forces, the energy ledger, stressing work banked by ending contacts and the order of
 simultaneous breakage events still use atomics, so runs on different thread counts agree
-to rounding, not bit for bit), then the breakage test (stressing energy, events, damage). Back on the host: every ``rebuild_check_interval`` steps the
-device flags are acted on (a guard stops the run; the Verlet rebuild trigger rebuilds the
-candidate list before the next step: the list stays valid until a particle moved skin/2,
-which is a guard), and when some particle broke, its replacement by fragments, a
-neighbour rebuild and the forces of the step recomputed (see
-:mod:`calendaring.breakage_kernels`). The time step is
+to rounding, not bit for bit), then the breakage test (stressing energy, events, damage).
+Back on the host: every ``rebuild_check_interval`` steps the device flags are acted on (a
+guard stops the run; the Verlet rebuild trigger rebuilds the candidate list before the
+next step: the list stays valid until a particle moved skin/2, which is a guard), and when
+some particle broke, its replacement by fragments, a neighbour rebuild and the forces of
+the step recomputed (see :mod:`calendaring.breakage_kernels`). The time step is
 ``timestep_fraction`` x the Rayleigh time of the smallest particle (``calendaring.timestep``),
 and with breakage at most ``breakage.fragment_timestep_fraction`` x the Rayleigh time of the
 smallest fragment; it is fixed when the run starts.
