@@ -21,6 +21,12 @@ cached start-up times of a fresh process.
     python benchmarks/bench_dem.py versus --threads 2 --np 2
     python benchmarks/bench_dem.py scaling --threads 2
 
+On a GPU (``--arch cuda``; ``versus`` then runs ours alone, ``scaling`` takes ``1M``, the 5k
+bed tiled 14 x 14):
+
+    python benchmarks/bench_dem.py versus --arch cuda --liggghts off --repeat 1
+    python benchmarks/bench_dem.py scaling --arch cuda --sizes 5k 100k 1M --particle-steps 5e8
+
 Writes JSON (and the overlay PNG) to benchmarks/results/. Speed is measured here, never
 asserted in tests.
 """
@@ -116,7 +122,8 @@ def run_ours(cfg, pos, rad, mat, z_top, speed: float, steps: int, every: int = 1
         wall = time.perf_counter() - t0
         n = sim.pool.n_alive()
         touching, _worst = sim.contact_stats()
-        return {"code": "calendaring", "threads": cfg.numerics.threads, "particles": n,
+        return {"code": "calendaring", "arch": sim.backend.arch,
+                "threads": cfg.numerics.threads, "particles": n,
                 "steps": steps, "wall_s": wall, "steps_per_s": steps / wall,
                 "particle_steps_per_s": n * steps / wall, "dt_s": sim.dt,
                 "prime_s": t_prime, "rebuilds": sim.n_rebuilds,
@@ -340,6 +347,10 @@ def cmd_versus(args) -> dict:
             np.savez(bed, pos=pos, rad=rad, mat=mat, z_top=z_top)
     prep = time.perf_counter() - t0
     cfg = hertz_config(cfg, args.threads, skin)  # the same neighbour skin as LIGGGHTS'
+    if args.arch != "cpu":
+        from calendaring.config import with_overrides
+
+        cfg = with_overrides(cfg, {"numerics.arch": args.arch})
     if args.rolling_friction is not None:
         from calendaring.config import with_overrides
 
@@ -352,7 +363,8 @@ def cmd_versus(args) -> dict:
           f"{int(np.sum(mat == 1))} CB), plate at {z_top * 1e6:.2f} um, built in {prep:.0f} s",
           flush=True)
     ours = repeat_median(lambda: run_ours(cfg, pos, rad, mat, z_top, args.speed, args.steps),
-                         args.repeat, f"calendaring on {args.threads} threads")
+                         args.repeat, f"calendaring on {args.threads} threads"
+                         if args.arch == "cpu" else f"calendaring on {args.arch}")
     area = cfg.domain.cell_x * cfg.domain.cell_y
     binary = None if args.liggghts == "off" else (
         args.liggghts or shutil.which("liggghts") or shutil.which("lmp_serial"))
@@ -411,10 +423,11 @@ def field_bytes(obj) -> int:
     return total
 
 
-def full_config(threads: int):
+def full_config(threads: int, arch: str = "cpu"):
     from calendaring.config import load_preset, with_overrides
 
-    return with_overrides(load_preset("paper"), {"numerics.threads": threads})
+    return with_overrides(load_preset("paper"), {"numerics.threads": threads,
+                                                 "numerics.arch": arch})
 
 
 def tile(pos, rad, mat, cfg, nx: int, ny: int):
@@ -467,7 +480,7 @@ sys.path.insert(0, {here!r})
 from bench_dem import full_config
 from calendaring.simulation import Simulation
 import numpy as np
-cfg = full_config(1)
+cfg = full_config(1, {arch!r})
 rng = np.random.default_rng(0)
 pos = np.column_stack([rng.uniform(0, 1e-4, 40), rng.uniform(0, 1e-4, 40),
                        np.linspace(6e-6, 190e-6, 40)])
@@ -480,14 +493,15 @@ print("STARTUP", time.perf_counter() - t0)
 """
 
 
-def startup_times() -> dict:
+def startup_times(arch: str = "cpu") -> dict:
     """Seconds from a fresh interpreter to two steps of the full model: with an empty
     kernel cache (first compile), then again with that cache (cached start-up)."""
     cache = tempfile.mkdtemp(prefix="bench-kcache-")
     try:
         out = {}
         for key in ("first_compile_s", "cached_start_s"):
-            proc = subprocess.run([sys.executable, "-c", STARTUP.format(here=str(HERE))],
+            code = STARTUP.format(here=str(HERE), arch=arch)
+            proc = subprocess.run([sys.executable, "-c", code],
                                   capture_output=True, text=True,
                                   env=dict(os.environ, CALENDARING_KERNEL_CACHE=cache))
             m = re.search(r"STARTUP ([0-9.eE+-]+)", proc.stdout)
@@ -516,22 +530,25 @@ def cached_bed(cfg, seed: int, cell_scale: float, folder: str | None):
     return pos, rad, mat, z_top, c
 
 
+TILES = {"20k": (2, 2), "100k": (4, 5), "1M": (14, 14)}  # tilings of the 5k bed
+
+
 def cmd_scaling(args) -> dict:
     from calendaring.backend import init_taichi
 
     result = {"benchmark": "bench_dem scaling", "preset": "paper (full model)",
-              "threads": args.threads, "speed_m_s": args.speed}
+              "arch": args.arch, "threads": args.threads, "speed_m_s": args.speed}
     if not args.skip_startup:
-        result["startup"] = startup_times()
+        result["startup"] = startup_times(args.arch)
         print(f"[scaling] start-up: {result['startup']}", flush=True)
-    init_taichi(threads=args.threads)
-    cfg = full_config(args.threads)
+    init_taichi(arch=args.arch, threads=args.threads)
+    cfg = full_config(args.threads, args.arch)
     rows = []
     small = cached_bed(cfg, args.seed, np.sqrt(0.2), args.bed_dir)
     base = cached_bed(cfg, args.seed, 1.0, args.bed_dir)
     beds = {"1k": small, "5k": base}
     pos, rad, mat, z_top, c5 = base
-    for label, (nx, ny) in (("20k", (2, 2)), ("100k", (4, 5))):
+    for label, (nx, ny) in TILES.items():
         if label in args.sizes:
             p, r, m, c = tile(pos, rad, mat, c5, nx, ny)
             beds[label] = (p, r, m, z_top, c)
@@ -569,6 +586,8 @@ def main(argv=None) -> int:
     v.add_argument("--steps", type=int, default=20000)
     v.add_argument("--speed", type=float, default=0.05, help="top-plate speed [m/s]")
     v.add_argument("--threads", type=int, default=2)
+    v.add_argument("--arch", default="cpu", choices=["cpu", "cuda"],
+                   help="our backend (LIGGGHTS runs on the CPU)")
     v.add_argument("--repeat", type=int, default=3,
                    help="runs of each code (medians reported: the machine is noisy)")
     v.add_argument("--np", type=int, default=2, help="LIGGGHTS MPI ranks")
@@ -589,8 +608,9 @@ def main(argv=None) -> int:
     v.add_argument("--out", default=str(RESULTS / "bench_dem_versus.json"))
     s = sub.add_parser("scaling", help="full model: particle-steps/s, memory, start-up")
     s.add_argument("--threads", type=int, default=2)
+    s.add_argument("--arch", default="cpu", choices=["cpu", "cuda"])
     s.add_argument("--sizes", nargs="+", default=["1k", "5k", "20k", "100k"],
-                   choices=["1k", "5k", "20k", "100k"])
+                   choices=["1k", "5k", "20k", "100k", "1M"])
     s.add_argument("--particle-steps", type=float, default=2e7,
                    help="timed particle-steps per size")
     s.add_argument("--speed", type=float, default=0.05, help="top-plate speed [m/s]")

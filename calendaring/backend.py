@@ -74,12 +74,9 @@ def init_taichi(
             f"Taichi already initialised with {_STATE['settings'][0]}; requested {key}. "
             "Call calendaring.backend.reset_taichi() first (this invalidates every pool)."
         )
-    if arch == "cuda":
-        ti_arch = ti.cuda
-    elif arch == "auto":
-        ti_arch = ti.gpu
-    else:
-        ti_arch = ti.cpu
+    # "auto" asks for CUDA, which Taichi replaces by the CPU when no CUDA device answers
+    # (ti.gpu would also probe Vulkan and OpenGL, which can crash a headless machine)
+    ti_arch = ti.cuda if arch in ("cuda", "auto") else ti.cpu
     kwargs = dict(
         arch=ti_arch,
         default_fp=ti.f64,
@@ -90,7 +87,7 @@ def init_taichi(
         debug=debug,
         log_level=ti.WARN,
     )
-    if arch != "cuda":
+    if arch != "cuda":  # the CPU's thread pool ("auto" may fall back to the CPU)
         kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)
     ti.init(**kwargs)
     actual = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
@@ -114,6 +111,14 @@ def cpu_pool_threads(threads: int) -> int:
     """
     cores = threads or (os.cpu_count() or 1)
     return 1 if cores == 1 else 2 * cores
+
+
+def serial_loops(threads: int) -> bool:
+    """Whether the per-step loops run serialised: on the CPU backend with one thread only
+    (a parallel loop's dispatch costs more than a small bed's work there). On CUDA every
+    loop stays parallel whatever ``numerics.threads`` says."""
+    info = current_backend()
+    return int(threads) == 1 and (info is None or info.arch == "cpu")
 
 
 def current_backend() -> BackendInfo | None:

@@ -29,6 +29,7 @@ import math
 import numpy as np
 import taichi as ti
 
+from calendaring.backend import serial_loops
 from calendaring.breakage import (
     TN_SIZES,
     breakable_mask,
@@ -60,7 +61,8 @@ class BreakageKernels:
     def __init__(self, cfg: SimConfig, d_parent_max: float) -> None:
         b = cfg.breakage
         names = cfg.material_names
-        self.serial = int(cfg.numerics.threads) == 1  # per-step loop without the thread pool
+        # per-step loop without the thread pool (one CPU thread only, never on CUDA)
+        self.serial = serial_loops(cfg.numerics.threads)
         self.n_mat = len(names)
         self.gamma = float(b.damage_constant)
         self.d0 = float(b.d0)

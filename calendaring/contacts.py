@@ -30,23 +30,13 @@ grows the table (copying the history) and rebuilds, never truncating.
 import numpy as np
 import taichi as ti
 
+from calendaring.neighbours import exclusive_scan, scan_blocks
+
 PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref",
             "normal_force")
 PAIR_OUT_F64 = ("arm_i", "arm_j", "roll_force", "stress_i", "stress_j")  # per step only
 HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref")
 PAIR_I32 = ("event_a", "event_b", "sibling")  # all history
-
-
-@ti.func
-def _exclusive_scan(count: ti.template(), start: ti.template(), total: ti.template(), n):
-    """start[i] = count[0] + ... + count[i - 1] for i < n, total = the whole sum (serial:
-    called at a kernel's top level, it is one serial task)."""
-    ti.loop_config(serialize=True)
-    for i in range(n):
-        if i == 0:
-            total[None] = 0
-        start[i] = total[None]
-        total[None] += count[i]
 
 
 @ti.data_oriented
@@ -113,6 +103,8 @@ class ContactTable:
         self.required = ti.field(ti.i32)
         self.in_total = ti.field(ti.i32)
         fb.place(self.n_pairs, self.required, self.in_total)
+        self.scan_block = ti.field(ti.i32)  # scratch of the two prefix sums
+        fb.dense(ti.i, scan_blocks(self.particle_capacity)).place(self.scan_block)
         self._tree = fb.finalize()
 
     def destroy(self) -> None:
@@ -195,7 +187,8 @@ class ContactTable:
             if pool.alive[i]:
                 n = self._visit(pool, grid, i, skin, False)
             self.seg_count[i] = n
-        _exclusive_scan(self.seg_count, self.seg_start, self.required, pool.n_slots[None])
+        exclusive_scan(self.seg_count, self.seg_start, self.required, self.scan_block,
+                       pool.n_slots[None])
         return self.required[None]
 
     @ti.kernel
@@ -237,7 +230,8 @@ class ContactTable:
             self.in_count[i] = 0
         for c in range(self.n_pairs[None]):
             ti.atomic_add(self.in_count[self.partner[c]], 1)
-        _exclusive_scan(self.in_count, self.in_start, self.in_total, pool.n_slots[None])
+        exclusive_scan(self.in_count, self.in_start, self.in_total, self.scan_block,
+                       pool.n_slots[None])
         for i in range(pool.n_slots[None]):
             self.in_cursor[i] = self.in_start[i]
         for c in range(self.n_pairs[None]):

@@ -17,6 +17,7 @@ synchronised v_n = v_{n-1/2} + dt/2 a_n.
 import numpy as np
 import taichi as ti
 
+from calendaring.backend import serial_loops
 from calendaring.breakage import breakable_mask, breakage_enabled
 from calendaring.config import SimConfig
 from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
@@ -71,9 +72,10 @@ class Kernels:
         self.adhesion_mode = _ADHESION[c.adhesion_mode]
         self.damping_mode = _DAMPING[c.damping_mode]
         self.track_energy = bool(cfg.numerics.track_energy)
-        # one thread: the per-step loops run serialised, without the thread pool's dispatch
-        # (about 45 us per parallel loop on a 2-core x86 VM, more than a small bed's work)
-        self.serial = int(cfg.numerics.threads) == 1
+        # one CPU thread: the per-step loops run serialised, without the thread pool's
+        # dispatch (about 45 us per parallel loop on a 2-core x86 VM, more than a small
+        # bed's work); never on CUDA
+        self.serial = serial_loops(cfg.numerics.threads)
         # The candidate list is rebuilt once some particle moved this fraction of skin/2
         # since the last build (skin/2 itself is the guard: beyond it a contact could be
         # missed). Flags read every step leave one step of travel to cover: 0.8; read every

@@ -6,8 +6,11 @@ periodic direction has fewer than three cells, every cell along it is visited in
 the three neighbours (no pair is visited twice), which needs a cell at least twice the
 cutoff so that a particle cannot touch two images of the same neighbour.
 
-The prefix sum is a serial loop: it runs once per rebuild over the cells, which is cheap
-on the CPU backend and avoids Taichi's CUDA-only ``PrefixSumExecutor``.
+The prefix sums (cells here, pair segments and incoming lists in
+:mod:`calendaring.contacts`) are blocked scans (:func:`exclusive_scan`): serial within
+blocks of ``SCAN_BLOCK`` entries, parallel over blocks, then a serial scan of the block
+totals. They run on both backends (Taichi's ``PrefixSumExecutor`` is CUDA-only) and keep a
+single GPU thread from walking a million entries at every rebuild.
 """
 
 
@@ -16,6 +19,40 @@ import math
 import taichi as ti
 
 from calendaring.errors import ConfigError
+
+SCAN_BLOCK = 256  # entries per block of exclusive_scan
+
+
+def scan_blocks(n: int) -> int:
+    """Size of the block-total scratch field :func:`exclusive_scan` needs for ``n`` entries."""
+    return max(1, (int(n) + SCAN_BLOCK - 1) // SCAN_BLOCK)
+
+
+@ti.func
+def exclusive_scan(count: ti.template(), start: ti.template(), total: ti.template(),
+                   block: ti.template(), n):
+    """start[i] = count[0] + ... + count[i - 1] for i < n; total[None] = the whole sum.
+
+    Call at a kernel's top level (its loops are then the kernel's own tasks). ``block``
+    holds at least :func:`scan_blocks` ``(n)`` i32 entries of scratch.
+    """
+    nb = (n + SCAN_BLOCK - 1) // SCAN_BLOCK
+    for b in range(nb):  # parallel over blocks, serial within one
+        s = 0
+        for i in range(b * SCAN_BLOCK, ti.min(n, (b + 1) * SCAN_BLOCK)):
+            start[i] = s
+            s += count[i]
+        block[b] = s
+    ti.loop_config(serialize=True)
+    for b in range(nb + 1):  # the block totals, in order
+        if b == 0:
+            total[None] = 0
+        if b < nb:
+            v = block[b]
+            block[b] = total[None]
+            total[None] += v
+    for i in range(n):
+        start[i] += block[i // SCAN_BLOCK]
 
 
 @ti.data_oriented
@@ -50,6 +87,10 @@ class CellGrid:
         self.start = ti.field(ti.i32)
         fb.dense(ti.i, self.n_cells).place(self.count)
         fb.dense(ti.i, self.n_cells + 1).place(self.start)
+        self.block = ti.field(ti.i32)  # scratch of the cell scan
+        fb.dense(ti.i, scan_blocks(self.n_cells)).place(self.block)
+        self.total = ti.field(ti.i32)
+        fb.place(self.total)
         self.cell_of = ti.field(ti.i32)
         self.rank = ti.field(ti.i32)
         self.sorted = ti.field(ti.i32)
@@ -86,7 +127,9 @@ class CellGrid:
 
     @ti.kernel
     def bin(self, pool: ti.template()):
-        """Counting sort of the live particles into cells (count, scan, scatter)."""
+        """Counting sort of the live particles into cells (count, scan, scatter), each cell
+        in increasing slot order, so that the candidate pairs and the order in which a
+        particle's forces are summed do not depend on thread timing or on the backend."""
         for c in range(self.n_cells):
             self.count[c] = 0
         for i in range(pool.n_slots[None]):
@@ -95,14 +138,20 @@ class CellGrid:
                 c = self.cell_index(ix, iy, iz)
                 self.cell_of[i] = c
                 self.rank[i] = ti.atomic_add(self.count[c], 1)
-        ti.loop_config(serialize=True)
-        for c in range(self.n_cells):
-            if c == 0:
-                self.start[0] = 0
-            self.start[c + 1] = self.start[c] + self.count[c]
+        exclusive_scan(self.count, self.start, self.total, self.block, self.n_cells)
+        self.start[self.n_cells] = self.total[None]
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self.sorted[self.start[self.cell_of[i]] + self.rank[i]] = i
+        for c in range(self.n_cells):  # insertion sort by slot: the atomic ranks are racy
+            lo = self.start[c]
+            for k in range(lo + 1, self.start[c + 1]):
+                v = self.sorted[k]
+                m = k
+                while m > lo and self.sorted[m - 1] > v:
+                    self.sorted[m] = self.sorted[m - 1]
+                    m -= 1
+                self.sorted[m] = v
 
     @ti.func
     def span(self, n: ti.template(), c):

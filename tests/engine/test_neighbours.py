@@ -81,3 +81,34 @@ def test_cell_smaller_than_two_cutoffs_is_rejected():
             sim.rebuild()
     finally:
         sim.destroy()
+
+
+@pytest.mark.parametrize("n", [0, 1, 255, 256, 257, 1000])
+def test_blocked_exclusive_scan_equals_cumsum(n):
+    import taichi as ti
+
+    from calendaring.neighbours import exclusive_scan, scan_blocks
+
+    cap = 1024
+    fb = ti.FieldsBuilder()
+    count, start, block, total = (ti.field(ti.i32) for _ in range(4))
+    fb.dense(ti.i, cap).place(count, start)
+    fb.dense(ti.i, scan_blocks(cap)).place(block)
+    fb.place(total)
+    tree = fb.finalize()
+
+    @ti.kernel
+    def scan(m: ti.i32):
+        exclusive_scan(count, start, total, block, m)
+
+    try:
+        values = np.random.default_rng(n).integers(0, 9, cap).astype(np.int32)
+        count.from_numpy(values)
+        start.fill(-7)
+        scan(n)
+        expected = np.concatenate([[0], np.cumsum(values[:n])])
+        np.testing.assert_array_equal(start.to_numpy()[:n], expected[:n])
+        assert total[None] == expected[n]
+        assert np.all(start.to_numpy()[n:] == -7)  # nothing written past n
+    finally:
+        tree.destroy()
