@@ -248,7 +248,7 @@ def cmd_dataset(args) -> int:
     prov = write_json(out.with_name(out.stem + ".provenance.json"),
                       provenance_report(args.runs, ds))
     nf = noise_floor(ds)
-    roles = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
+    roles = {str(r): int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
     print(f"wrote {out} and {prov.name}: {len(ds)} runs {roles}, {len(ds.skipped)} skipped, "
           f"{int(ds.n_events.sum())} breakage events")
     for name, why in ds.skipped:
