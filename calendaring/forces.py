@@ -47,8 +47,10 @@ TRACE_LEN = 4096  # steps of plate forces buffered on the device between host re
 GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN = 1, 2, 3, 4, 5
 GUARD_NAMES = {GUARD_NAN: "non-finite position or velocity",
                GUARD_OVERLAP: "overlap above numerics.max_overlap_fraction of the smaller radius",
-               GUARD_BOTTOM: "particle centre below the bottom plate (left the cell)",
-               GUARD_TOP: "particle centre above the top plate (left the cell)",
+               GUARD_BOTTOM: "particle centre below the bottom plate by more than "
+                             "max(0, numerics.max_overlap_fraction - 1) radii (left the cell)",
+               GUARD_TOP: "particle centre above the top plate by more than "
+                          "max(0, numerics.max_overlap_fraction - 1) radii (left the cell)",
                GUARD_SKIN: "particle moved more than skin/2 between neighbour-list checks"}
 
 _ADHESION = {"surface_energy_ap": ADHESION_SURFACE_ENERGY_AP, "jkr_R": ADHESION_JKR_R,
@@ -81,6 +83,11 @@ class Kernels:
         # missed). Flags read every step leave one step of travel to cover: 0.8; read every
         # k > 1 steps, k steps: 0.5.
         self.rebuild_fraction = 0.8 if cfg.numerics.rebuild_check_interval == 1 else 0.5
+        # A particle has left the cell once its plate overlap exceeds max(1,
+        # max_overlap_fraction) radii: with an allowance above 1 (soft carbon black crushed
+        # against a plate) the centre may lie up to (allowance - 1) radii beyond the plate,
+        # the same overlap the pair guard accepts between two particles.
+        self.plate_slack = max(0.0, float(cfg.numerics.max_overlap_fraction) - 1.0)
         # stressing-work bookkeeping of the breakage model (spec 5.4), compiled in only when
         # some material can break
         self.breakage = breakage_enabled(cfg)
@@ -303,9 +310,9 @@ class Kernels:
                 self.need_rebuild[None] = 1
                 if d2 > half_skin * half_skin:
                     self._flag(GUARD_SKIN, i, step, ti.sqrt(d2))
-            if x[2] < z_bottom:
+            if x[2] < z_bottom - ti.static(self.plate_slack) * r:
                 self._flag(GUARD_BOTTOM, i, step, x[2])
-            if x[2] > z_top:
+            if x[2] > z_top + ti.static(self.plate_slack) * r:
                 self._flag(GUARD_TOP, i, step, x[2])
         else:
             self._flag(GUARD_NAN, i, step, x[2])

@@ -59,3 +59,24 @@ def test_skin_violation_is_an_error_not_a_silent_miss():
             sim.run(100)
     finally:
         sim.destroy()
+
+
+@pytest.mark.parametrize("allowance, depth, stops", [(0.5, 0.2, True), (1.5, 0.3, False),
+                                                     (1.5, 0.7, True)])
+def test_bottom_plate_guard_follows_the_overlap_allowance(allowance, depth, stops):
+    # centre `depth` radii below the bottom plate (z = 0): a plate overlap of 1 + depth radii,
+    # accepted when that is within numerics.max_overlap_fraction (soft CB crushed on a plate)
+    sim = Simulation(frictionless_pair(max_overlap_fraction=allowance), capacity=8)
+    try:
+        r = 3e-6
+        ids = sim.add_particles([[20e-6, 30e-6, -depth * r]], [r], [1])
+        if stops:
+            with pytest.raises(SimulationError, match="below the bottom plate") as err:
+                sim.run(1)
+            assert err.value.particle_ids == [int(ids[0])]
+        else:
+            sim.run(1)
+            v = sim.pool.to_numpy(("velocity",))["velocity"][int(ids[0])]
+            assert v[2] > 0.0  # pushed back into the cell by the plate
+    finally:
+        sim.destroy()
