@@ -361,9 +361,6 @@ def _read_json(path: Path):
 def plot_micro_table(tables: dict[str, list[dict]], path: Path) -> Path:
     """Porosity, tortuosity and D_eff against depth for several runs (Fig. 13 b-d) from the
     microstructure table rows (primary resolution; open markers: extrapolated)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure
@@ -391,9 +388,6 @@ def plot_micro_table(tables: dict[str, list[dict]], path: Path) -> Path:
 
 def plot_pressure(curves: dict[str, dict], path: Path, title: str) -> Path:
     """Pressure-depth curves of several runs (um / MPa)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure
@@ -412,9 +406,6 @@ def plot_pressure(curves: dict[str, dict], path: Path, title: str) -> Path:
 
 def plot_psd(diams: dict[str, np.ndarray], path: Path, title: str) -> Path:
     """AM diameter distributions at the start of several runs (Fig. 12 a/c)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure

@@ -855,9 +855,6 @@ def plot_microstructure(results: dict[str, MicrostructureResult], out_dir) -> li
     b-d): ``microstructure_porosity.png``, ``microstructure_tortuosity.png``,
     ``microstructure_deff.png``. Solid lines: primary resolution; dotted: extrapolated to zero
     voxel size; dashed (porosity): particle porosity."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     out_dir = Path(out_dir)

@@ -525,9 +525,6 @@ def dataset_given_data(ds, method: str = "rbd_fast", roles: Sequence[str] = ("tr
 def plot_sobol(result: SobolResult, path: str | Path, symbols: Sequence[str] | None = None,
                title: str = "") -> Path:
     """Fig. 10: one panel per output, S1 and ST bars with CI error bars (PNG, atomic)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure
@@ -559,9 +556,6 @@ def plot_sobol(result: SobolResult, path: str | Path, symbols: Sequence[str] | N
 
 def plot_convergence(rows: Sequence[dict], path: str | Path, tol: float = CI_TOL) -> Path:
     """Largest CI half-width per output against N (log-log), with the tolerance line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure

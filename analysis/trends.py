@@ -155,9 +155,6 @@ def trends_to_json(tr: dict, space=None) -> dict:
 def plot_trends(tr: dict, path: str | Path, symbols: Sequence[str] | None = None) -> Path:
     """Fig. 11: one panel per parameter, each output min-max scaled over all sweeps (so the
     panels share one scale: a steeper curve is a stronger effect). PNG, atomic."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from analysis.plots import save_figure

@@ -105,9 +105,6 @@ def design_report(x: np.ndarray, space: ParameterSpace = PAPER_SPACE) -> dict:
 
 def plot_correlation(report: dict, path: Path, space: ParameterSpace = PAPER_SPACE) -> Path:
     """Heatmap of the design's Pearson matrix (paper Fig. 3), atomically to ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     r = np.asarray(report["pearson"])

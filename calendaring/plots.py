@@ -12,9 +12,6 @@ from calendaring.units import to_mpa, to_um
 
 
 def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt

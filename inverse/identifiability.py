@@ -119,9 +119,6 @@ def loss_profiles(loss: CompositeLoss, u_opt: np.ndarray, free: np.ndarray, name
 
 def plot_identifiability(report: dict, path, symbols: dict[str, str] | None = None):
     """Profiles (one panel per free parameter) and the eigen-spectrum, one PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     prof = report["profiles"]

@@ -309,9 +309,6 @@ def posterior_predictive(model, target: Target, logp: LogPosterior, flat: np.nda
 def plot_predictive(target: Target, predictive: dict, path, best_pressure=None,
                     sigma_pa=None):
     """Posterior-predictive band over the target (depth in um, pressure in MPa)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from calendaring.units import to_mpa, to_um
@@ -343,9 +340,6 @@ def plot_predictive(target: Target, predictive: dict, path, best_pressure=None,
 
 def plot_trace(result: PosteriorResult, path, symbols: dict[str, str] | None = None):
     """Walker traces per free parameter (unit scale), burn-in shaded."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     symbols = symbols or {}

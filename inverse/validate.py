@@ -129,9 +129,6 @@ def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfi
 
 def plot_validation(report: dict, path, space):
     """Truth against optimum with the 90 % intervals, one panel per parameter."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     names = list(report["per_parameter"])

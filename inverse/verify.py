@@ -70,9 +70,6 @@ def curve_error(target: Target, pressure: np.ndarray, covered: np.ndarray) -> di
 
 def plot_overlay(target: Target, curves: list[dict], path, prediction=None):
     """Target, surrogate prediction and DEM curves (depth in um, pressure in MPa)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from calendaring.units import to_mpa, to_um
