@@ -16,8 +16,8 @@
 # in MPa on the held-out test split.
 #
 # **Inputs.** `data/reference.h5` (the reference dataset; `calendaring.dataset.read_dataset`
-# checks its schema). A provisional copy is in the repository while the sweep runs; the final
-# file has the same schema, and the numbers printed here are whatever that file gives.
+# checks its schema): 300 DEM runs of the `sweep` preset (`data/README.md`); the numbers
+# printed here are whatever that file gives.
 # Outputs (figures, the model checkpoint) in `notebooks/_out/40_surrogate/` (or
 # `$CALENDARING_NOTEBOOK_OUT`).
 #
