@@ -331,9 +331,9 @@ def repeat_median(run, n: int, label: str) -> dict:
 
 def cmd_versus(args) -> dict:
     from calendaring.backend import init_taichi
-    from calendaring.config import load_preset
+    from calendaring.config import load_preset, with_overrides
 
-    init_taichi(threads=args.threads)
+    init_taichi(arch=args.arch, threads=args.threads)
     cfg = hertz_config(load_preset("paper"), args.threads)
     skin = args.skin if args.skin is not None else args.liggghts_skin
     t0 = time.perf_counter()
@@ -348,12 +348,8 @@ def cmd_versus(args) -> dict:
     prep = time.perf_counter() - t0
     cfg = hertz_config(cfg, args.threads, skin)  # the same neighbour skin as LIGGGHTS'
     if args.arch != "cpu":
-        from calendaring.config import with_overrides
-
         cfg = with_overrides(cfg, {"numerics.arch": args.arch})
     if args.rolling_friction is not None:
-        from calendaring.config import with_overrides
-
         over = {f"contact.pairs.{k}.rolling_friction": args.rolling_friction
                 for k in cfg.contact.pairs}
         over.update({f"contact.plate_pairs.{k}.rolling_friction": args.rolling_friction

@@ -30,7 +30,7 @@ grows the table (copying the history) and rebuilds, never truncating.
 import numpy as np
 import taichi as ti
 
-from calendaring.neighbours import exclusive_scan, scan_blocks
+from calendaring.neighbours import exclusive_scan, scan_blocks, sort_segment
 
 PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref",
             "normal_force")
@@ -237,15 +237,8 @@ class ContactTable:
         for c in range(self.n_pairs[None]):
             k = ti.atomic_add(self.in_cursor[self.partner[c]], 1)
             self.in_pair[k] = c
-        for i in range(pool.n_slots[None]):  # insertion sort: the scatter order is racy
-            lo = self.in_start[i]
-            for k in range(lo + 1, lo + self.in_count[i]):
-                v = self.in_pair[k]
-                m = k
-                while m > lo and self.in_pair[m - 1] > v:
-                    self.in_pair[m] = self.in_pair[m - 1]
-                    m -= 1
-                self.in_pair[m] = v
+        for i in range(pool.n_slots[None]):  # in pair order: the scatter order is racy
+            sort_segment(self.in_pair, self.in_start[i], self.in_start[i] + self.in_count[i])
 
     @ti.kernel
     def reset_displacements(self, pool: ti.template()):

@@ -55,6 +55,19 @@ def exclusive_scan(count: ti.template(), start: ti.template(), total: ti.templat
         start[i] += block[i // SCAN_BLOCK]
 
 
+@ti.func
+def sort_segment(a: ti.template(), lo, hi):
+    """Insertion sort of a[lo:hi] in increasing order (short segments: a cell's particles,
+    a particle's incoming pairs, whose scatter order by atomic ranks is racy)."""
+    for k in range(lo + 1, hi):
+        v = a[k]
+        m = k
+        while m > lo and a[m - 1] > v:
+            a[m] = a[m - 1]
+            m -= 1
+        a[m] = v
+
+
 @ti.data_oriented
 class CellGrid:
     """Cell lists over a pool.
@@ -143,15 +156,8 @@ class CellGrid:
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self.sorted[self.start[self.cell_of[i]] + self.rank[i]] = i
-        for c in range(self.n_cells):  # insertion sort by slot: the atomic ranks are racy
-            lo = self.start[c]
-            for k in range(lo + 1, self.start[c + 1]):
-                v = self.sorted[k]
-                m = k
-                while m > lo and self.sorted[m - 1] > v:
-                    self.sorted[m] = self.sorted[m - 1]
-                    m -= 1
-                self.sorted[m] = v
+        for c in range(self.n_cells):  # by slot: the atomic ranks are racy
+            sort_segment(self.sorted, self.start[c], self.start[c + 1])
 
     @ti.func
     def span(self, n: ti.template(), c):

@@ -48,8 +48,7 @@ OUT.mkdir(parents=True, exist_ok=True)
 
 
 def show(fig, name):
-    """Save a figure under OUT and display the PNG (works whatever matplotlib backend the
-    library's plot functions switched to)."""
+    """Save a figure under OUT and display the PNG."""
     fig.savefig(OUT / name, dpi=120)
     plt.close(fig)
     display(Image(filename=str(OUT / name)))
