@@ -37,6 +37,13 @@ from surrogate.ensemble import ensemble_forward
 from surrogate.model import DualBranchMLP, ModelConfig
 
 PREDICT_BATCH = 2048  # rows per forward pass in predict()
+# Arithmetic of the forward pass in predict(): float32 (the trained weights) or bfloat16
+# autocast (matrix products in bfloat16, accumulated in float32; about twice the rows per
+# second on CPUs with AVX512-BF16 or AMX, slower on CPUs without them). On the reference
+# model bfloat16 moved the normalised pressures by an MSE of about 1e-6 and the
+# distributions by a KL of about 2e-5, against model errors of 9e-4 and 0.65
+# (benchmarks/bench_surrogate.py measures both).
+PRECISIONS = ("float32", "bfloat16")
 
 
 @dataclass
@@ -145,7 +152,8 @@ class SurrogateModel:
         p, d, p_var, _ = ensemble_forward(self.members, u)
         return p, d, p_var
 
-    def predict_unit(self, u, batch_size: int = PREDICT_BATCH) -> Prediction:
+    def predict_unit(self, u, batch_size: int = PREDICT_BATCH,
+                     precision: str = "float32") -> Prediction:
         """:meth:`predict` from unit parameters ``(n, 8)`` in ``[0, 1]``."""
         u = np.asarray(u, dtype=float)
         if u.ndim == 1:
@@ -158,10 +166,10 @@ class SurrogateModel:
             r, c = np.argwhere(bad)[0]
             raise ConfigError(f"u[{r}, {c}] ({self.space.names[c]})", float(u[r, c]),
                               "[0, 1] (unit-scaled parameter)")
-        return self._predict(u, self.space.from_unit(u), [], batch_size)
+        return self._predict(u, self.space.from_unit(u), [], batch_size, precision)
 
     def predict(self, params, *, defaults: str | None = "reference",
-                batch_size: int = PREDICT_BATCH) -> Prediction:
+                batch_size: int = PREDICT_BATCH, precision: str = "float32") -> Prediction:
         """Predict from physical parameter values.
 
         Args:
@@ -171,12 +179,16 @@ class SurrogateModel:
             defaults: "reference" fills names missing from a mapping with the space's
                 reference values (listed in :attr:`Prediction.defaulted`); None requires all.
             batch_size: rows per forward pass.
+            precision: "float32" (default) or "bfloat16": the forward pass under bfloat16
+                autocast, for bulk screening on CPUs with native bfloat16 (see
+                :data:`PRECISIONS`); outputs are float64 either way.
 
         Raises:
-            ConfigError: an unknown name, a value outside the bounds, a wrong shape.
+            ConfigError: an unknown name, a value outside the bounds, a wrong shape, an
+                unknown precision.
         """
         x, defaulted = self._rows(params, defaults)
-        return self._predict(self.space.to_unit(x), x, defaulted, batch_size)
+        return self._predict(self.space.to_unit(x), x, defaulted, batch_size, precision)
 
     def _rows(self, params, defaults) -> tuple[np.ndarray, list[str]]:
         names = self.space.names
@@ -216,20 +228,31 @@ class SurrogateModel:
 
     @torch.inference_mode()
     def _predict(self, u: np.ndarray, x: np.ndarray, defaulted: list[str],
-                 batch_size: int) -> Prediction:
+                 batch_size: int, precision: str = "float32") -> Prediction:
+        if precision not in PRECISIONS:
+            raise ConfigError("precision", precision, f"one of {PRECISIONS}")
         for m in self.members:
             m.eval()
         n = len(u)
         ut = torch.as_tensor(u, dtype=torch.float32)
+        low = precision == "bfloat16"
+
+        def run(member, ub):
+            if not low:
+                return member(ub)
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                p, d = member(ub)
+            return p.float(), d.float()
+
         p_mean, d_mean, p_var, p_std_pa, d_std = [], [], [], [], []
         for s in range(0, max(n, 1), max(int(batch_size), 1)):
             ub = ut[s:s + batch_size]
             if not self.is_ensemble:
-                p, d = self.members[0](ub)
+                p, d = run(self.members[0], ub)
                 p_mean.append(p)
                 d_mean.append(d)
                 continue
-            outs = [m(ub) for m in self.members]
+            outs = [run(m, ub) for m in self.members]
             p = torch.stack([o[0] for o in outs])  # (m, b, 196)
             d = torch.stack([o[1] for o in outs])  # (m, b, 30, 30)
             p_mean.append(p.mean(0))
@@ -239,7 +262,9 @@ class SurrogateModel:
             d_std.append(d.std(0, unbiased=False))
 
         def cat(parts, dtype=np.float64):
-            return torch.cat(parts).numpy().astype(dtype) if parts else None
+            if not parts:
+                return None
+            return (parts[0] if len(parts) == 1 else torch.cat(parts)).numpy().astype(dtype)
 
         p_norm = cat(p_mean)
         return Prediction(
@@ -315,4 +340,4 @@ def load(path: str | Path) -> SurrogateModel:
     return model
 
 
-__all__ = ["PREDICT_BATCH", "Prediction", "SurrogateModel", "load"]
+__all__ = ["PREDICT_BATCH", "PRECISIONS", "Prediction", "SurrogateModel", "load"]

@@ -62,7 +62,7 @@ class Normalisation:
     def denormalise(self, x):
         """Normalised units -> Pa (NumPy or torch); the inverse of :meth:`normalise`."""
         c = x * self.span + self.cbrt_min
-        return c**3
+        return c * c * c  # not c**3: a general power, 5x slower on NumPy arrays
 
     def to_dict(self) -> dict:
         return {"cbrt_min": self.cbrt_min, "cbrt_max": self.cbrt_max, "unit": "Pa^(1/3)"}

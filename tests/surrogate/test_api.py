@@ -82,6 +82,23 @@ def test_predict_rejects_bad_names_and_values(model):
     assert "u[0, 0]" in err.value.key
 
 
+def test_bfloat16_prediction_stays_close_to_float32(model):
+    """The bfloat16 fast path changes the arithmetic, not the model: bfloat16 keeps 8
+    significant bits (relative rounding 2^-9 per operation), so the normalised pressures
+    agree to ~1e-2 and each distribution still sums to one."""
+    u = np.random.default_rng(3).random((64, 8))
+    a = model.predict_unit(u)
+    b = model.predict_unit(u, precision="bfloat16", batch_size=16)
+    assert b.pressure.dtype == np.float64 and b.pressure.shape == a.pressure.shape
+    assert np.abs(b.pressure_normalised - a.pressure_normalised).max() < 2e-2
+    assert np.abs(b.pressure_normalised - a.pressure_normalised).max() > 0.0  # really bf16
+    np.testing.assert_allclose(b.distribution.sum(axis=(1, 2)), 1.0, rtol=1e-3)
+    assert np.abs(b.distribution - a.distribution).max() < 1e-2
+    with pytest.raises(ConfigError) as err:
+        model.predict_unit(u, precision="float16")
+    assert err.value.key == "precision" and err.value.value == "float16"
+
+
 def test_load_rejects_other_files(tmp_path, tiny_h5):
     with pytest.raises(CheckpointError, match="no such file"):
         surrogate.load(tmp_path / "none.pt")
