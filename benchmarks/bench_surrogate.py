@@ -33,8 +33,8 @@ import torch
 
 from calendaring.dataset import read_dataset, synthetic_dataset
 from surrogate.api import PRECISIONS, SurrogateModel
-from surrogate.losses import kl_per_row
 from surrogate.evaluate import model_metrics, replicate_comparison
+from surrogate.losses import kl_per_row
 from surrogate.train import TrainConfig, train
 
 TARGETS = {"pressure_mse_normalised_max": 3e-4, "kl_over_floor_max": 1.2,

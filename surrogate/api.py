@@ -340,4 +340,4 @@ def load(path: str | Path) -> SurrogateModel:
     return model
 
 
-__all__ = ["PREDICT_BATCH", "PRECISIONS", "Prediction", "SurrogateModel", "load"]
+__all__ = ["PRECISIONS", "PREDICT_BATCH", "Prediction", "SurrogateModel", "load"]

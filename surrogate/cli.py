@@ -38,6 +38,7 @@ def cmd_train(args) -> int:
     from surrogate.api import SurrogateModel
     from surrogate.ensemble import train_ensemble
     from surrogate.evaluate import loss_table_markdown, model_metrics, summary_lines
+    from surrogate.model import ModelConfig
     from surrogate.train import TrainConfig
 
     out = Path(args.out)
@@ -50,9 +51,10 @@ def cmd_train(args) -> int:
     roles = ("train", "replicate") if args.include_replicates else ("train",)
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                       weight_decay=args.weight_decay, patience=args.patience, seed=args.seed,
-                      train_roles=roles)
+                      mse_weight=args.mse_weight, kl_weight=args.kl_weight, train_roles=roles)
+    model_config = ModelConfig(dropout=args.dropout)
     t0 = time.perf_counter()
-    results = train_ensemble(ds, args.ensemble, cfg, progress=not args.quiet)
+    results = train_ensemble(ds, args.ensemble, cfg, model_config, progress=not args.quiet)
     seconds = time.perf_counter() - t0
     model = SurrogateModel.from_training(results, ds, {"train_seconds_total": seconds,
                                                        "command": "surrogate train " +
@@ -183,6 +185,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--patience", type=int, default=20,
                    help="early stopping after this many epochs without a lower validation "
                         "loss (0: off; the best weights are kept either way)")
+    t.add_argument("--mse-weight", type=float, default=0.7,
+                   help="weight of the pressure MSE in the loss (default 0.7, as the paper)")
+    t.add_argument("--kl-weight", type=float, default=0.3,
+                   help="weight of the distribution KL in the loss (default 0.3, as the paper)")
+    t.add_argument("--dropout", type=float, default=0.3,
+                   help="dropout probability throughout the network (default 0.3, as the "
+                        "paper)")
     t.add_argument("--include-replicates", action="store_true",
                    help="also split and train on 'replicate' rows (default: 'train' rows "
                         "only; 'holdout' rows are never used)")

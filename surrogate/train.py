@@ -66,6 +66,13 @@ class TrainConfig:
             raise ConfigError("--lr", self.lr, "a positive number")
         if not (self.weight_decay >= 0 and np.isfinite(self.weight_decay)):
             raise ConfigError("--weight-decay", self.weight_decay, "a number >= 0")
+        for key in ("mse_weight", "kl_weight"):
+            v = getattr(self, key)
+            if not (v >= 0 and np.isfinite(v)):
+                raise ConfigError(f"--{key.replace('_', '-')}", v, "a finite number >= 0")
+        if self.mse_weight + self.kl_weight <= 0:
+            raise ConfigError("--mse-weight + --kl-weight", self.mse_weight + self.kl_weight,
+                              "> 0 (not both weights zero)")
 
     def to_dict(self) -> dict:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()}

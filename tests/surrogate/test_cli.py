@@ -90,3 +90,25 @@ def test_dataset_without_expected_datasets_exits_2(model_pt, tmp_path, capsys):
     assert not (tmp_path / "x.pt").exists()
     assert main(["predict", str(bad), "--params", "d0=8e-6"]) == 2
     assert "not a readable surrogate checkpoint" in capsys.readouterr().err
+
+
+def test_train_loss_weights_and_dropout_reach_the_checkpoint(tiny_h5, tmp_path):
+    import surrogate
+
+    out = tmp_path / "w.pt"
+    assert main(["train", str(tiny_h5), "--out", str(out), "--epochs", "2", "--mse-weight",
+                 "30", "--kl-weight", "0.3", "--dropout", "0.1", "--quiet"]) == 0
+    m = surrogate.load(out)
+    assert m.config.dropout == pytest.approx(0.1)
+    cfg = m.info["train_config"]
+    assert cfg["mse_weight"] == pytest.approx(30.0) and cfg["kl_weight"] == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize("flag, value, key", [("--mse-weight", "-1", "--mse-weight"),
+                                              ("--dropout", "1.5", "dropout")])
+def test_train_bad_loss_weight_or_dropout_exit_2(tiny_h5, tmp_path, capsys, flag, value, key):
+    out = tmp_path / "bad.pt"
+    assert main(["train", str(tiny_h5), "--out", str(out), flag, value, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and key in err and value in err
+    assert not out.exists()
