@@ -56,8 +56,11 @@ def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0,
     z_insert = max(3.0 * z_dense, 2.5 * float(diam.max()))
     pos, rad, mat = random_insertion(diam, mat, cfg.domain.cell_x, cfg.domain.cell_y,
                                      z_insert, rng)
+    # the fast, coarse pre-compaction can shoot a squeezed carbon-black sphere out at tens
+    # of m/s; a wider skin (at least 1 um) keeps its neighbour list valid (untimed stage)
     prep = with_overrides(cfg, {"numerics.timestep_fraction": 0.2,
                                 "numerics.rebuild_check_interval": 1,
+                                "numerics.skin": max(cfg.numerics.skin, 1e-6),
                                 "breakage.enabled": False,
                                 "domain.height": max(cfg.domain.height, z_insert + 1e-6)})
     sim = Simulation(prep, capacity=len(rad))
