@@ -287,7 +287,43 @@ def kl_divergence(p, q, floor: float = KL_FLOOR) -> np.ndarray:
     return np.sum(p * np.log(p / q), axis=(-1, -2))
 
 
-def noise_floor(ds: Dataset) -> dict:
+def sampled_kl_floor(counts: np.ndarray, n_sim: int = 200, seed: int = 0) -> dict:
+    """What the KL floor of one replicate group would read, and what a perfect model would
+    score, if each run's events were drawn independently from one distribution.
+
+    The group's pooled histogram stands in for the true distribution q. Each simulated group
+    draws every run's event count from q (multinomial); ``floor_like`` is the mean
+    KL(run || pooled simulated group), as :func:`noise_floor` computes its floor, and
+    ``perfect`` the mean KL(run || q), the score of a model that predicts q exactly. The
+    pooled histogram includes the run itself, so ``floor_like < perfect``: a prediction of
+    the true distribution scores ``perfect / floor_like`` times the floor.
+
+    Args:
+        counts: ``(runs, L, D)`` event counts of one group (runs with events only).
+        n_sim: simulated groups.
+        seed: NumPy seed.
+    """
+    counts = np.asarray(counts)
+    n = counts.reshape(len(counts), -1).sum(axis=1).astype(int)
+    if len(counts) < 2 or np.any(n < 1):
+        raise ConfigError("replicate counts", f"{len(counts)} runs, events {n.tolist()}",
+                          ">= 2 runs, each with >= 1 event")
+    q = counts.sum(axis=0).astype(float)
+    q /= q.sum()
+    rng = np.random.default_rng(seed)
+    floor_like, perfect = [], []
+    for _ in range(int(n_sim)):
+        sims = np.stack([rng.multinomial(k, q.ravel()).reshape(q.shape) for k in n])
+        hist = sims / n[:, None, None]
+        pooled = sims.sum(axis=0) / n.sum()
+        floor_like.append(float(np.mean(kl_divergence(hist, pooled))))
+        perfect.append(float(np.mean(kl_divergence(hist, q))))
+    fl, pf = float(np.mean(floor_like)), float(np.mean(perfect))
+    return {"floor_like": fl, "perfect": pf, "ratio": pf / fl if fl > 0 else float("nan"),
+            "n_sim": int(n_sim)}
+
+
+def noise_floor(ds: Dataset, kl_simulations: int = 200) -> dict:
     """Run-to-run noise at repeated parameters (replicate groups with >= 2 runs).
 
     Pressure: the mean over groups of the per-point replicate variance (normalised units,
@@ -295,12 +331,18 @@ def noise_floor(ds: Dataset) -> dict:
     against one replicate, times n/(n-1)) and the relative spread in Pa at 25/50/75/100 %
     of the stroke. Distribution: the mean KL of each replicate's histogram to its group's
     pooled histogram, and the mean pairwise KL between replicates.
+
+    The KL floor is optimistic: the pooled histogram contains the replicate itself.
+    ``kl_perfect_model_ratio`` (:func:`sampled_kl_floor`, ``kl_simulations`` simulated
+    groups per group; 0 skips it) is how many times that floor a model predicting the true
+    distribution would score if events were independent draws: the least ratio a
+    model can be expected to reach.
     """
     groups = sorted(set(int(g) for g in ds.group if g >= 0))
     out = {"groups": [], "pressure_mse_normalised": None, "kl_to_group_mean": None,
-           "kl_pairwise": None}
+           "kl_pairwise": None, "kl_perfect_model_ratio": None}
     x = ds.pressure_normalised
-    mses, kls, pair = [], [], []
+    mses, kls, pair, ratios = [], [], [], []
     for g in groups:
         idx = np.nonzero(ds.group == g)[0]
         if len(idx) < 2:
@@ -316,6 +358,14 @@ def noise_floor(ds: Dataset) -> dict:
         pk_mean = float(np.mean(pk)) if pk else float("nan")
         kls.append(k_mean)
         pair.append(pk_mean)
+        sim = None
+        if kl_simulations and len(has) >= 2:
+            raw = ds.histogram[has] * ds.n_events[has][:, None, None]
+            counts = np.rint(raw).astype(int)
+            # only histograms of counted events (not, e.g., smooth synthetic ones)
+            if np.allclose(raw, counts, atol=1e-6) and np.all(counts.sum(axis=(1, 2)) > 0):
+                sim = sampled_kl_floor(counts, kl_simulations, seed=g)
+                ratios.append(sim["ratio"])
         p = ds.pressure[idx]
         rel = {}
         for frac in (0.25, 0.5, 0.75, 1.0):
@@ -326,11 +376,12 @@ def noise_floor(ds: Dataset) -> dict:
             "group": g, "runs": len(idx), "params": ds.space.as_dict(ds.params[idx[0]]),
             "pressure_var_normalised": float(var), "pressure_rel_std": rel,
             "events_mean": float(ds.n_events[idx].mean()), "kl_to_group_mean": k_mean,
-            "kl_pairwise": pk_mean})
+            "kl_pairwise": pk_mean, "kl_sampled": sim})
     if mses:
         out["pressure_mse_normalised"] = float(np.mean(mses))
         out["kl_to_group_mean"] = float(np.nanmean(kls)) if np.any(np.isfinite(kls)) else None
         out["kl_pairwise"] = float(np.nanmean(pair)) if np.any(np.isfinite(pair)) else None
+        out["kl_perfect_model_ratio"] = float(np.mean(ratios)) if ratios else None
     return out
 
 

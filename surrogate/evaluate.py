@@ -148,7 +148,10 @@ def replicate_comparison(model: SurrogateModel, ds: Dataset) -> dict | None:
     per-point replicate variance, ddof 1, in the model's normalisation: what a perfect mean
     predictor scores, times n/(n-1)). Distribution: mean KL(replicate || prediction) and
     the floor mean KL(replicate || group's pooled histogram) from
-    :func:`calendaring.dataset.noise_floor`. None without a group of >= 2 runs.
+    :func:`calendaring.dataset.noise_floor`, with ``kl_perfect_model_ratio``: the multiple
+    of that floor a model predicting the true distribution would score (events drawn
+    independently; :func:`calendaring.dataset.sampled_kl_floor`). None without a group of
+    >= 2 runs.
     """
     groups = [g for g in sorted(set(int(g) for g in ds.group if g >= 0))
               if np.sum(ds.group == g) >= 2]
@@ -170,8 +173,10 @@ def replicate_comparison(model: SurrogateModel, ds: Dataset) -> dict | None:
            "pressure_mse_normalised_floor": float(np.mean(mse_floor)),
            "kl_model": float(np.mean(kl_model)) if kl_model else None,
            "kl_floor": floor["kl_to_group_mean"], "kl_pairwise_floor": floor["kl_pairwise"],
+           "kl_perfect_model_ratio": floor.get("kl_perfect_model_ratio"),
            "file_noise_floor": {k: floor[k] for k in ("pressure_mse_normalised",
-                                                      "kl_to_group_mean", "kl_pairwise")}}
+                                                      "kl_to_group_mean", "kl_pairwise",
+                                                      "kl_perfect_model_ratio")}}
     out["pressure_mse_ratio"] = (out["pressure_mse_normalised_model"]
                                  / out["pressure_mse_normalised_floor"]
                                  if out["pressure_mse_normalised_floor"] > 0 else None)
@@ -461,7 +466,8 @@ def evaluate(model: SurrogateModel, ds: Dataset, out_dir: str | Path | None = No
             "pressure_mse_normalised_floor": fp, "kl_mean": kl, "kl_floor": fk,
             "pressure_mse_over_floor": m["pressure"]["pressure_mse_normalised"] / fp
             if fp else None,
-            "kl_over_floor": kl / fk if (kl is not None and fk) else None}
+            "kl_over_floor": kl / fk if (kl is not None and fk) else None,
+            "kl_perfect_model_ratio": rep_cmp.get("kl_perfect_model_ratio")}
     if baseline and split is not None and len(split["test"]):
         train_rows = np.concatenate([split["train"], split["val"]])
         out["baseline_test"] = baseline_metrics(model, ds, train_rows, split["test"])
@@ -531,7 +537,8 @@ def summary_lines(out: dict) -> list[str]:
         lines.append(f"replicates ({r['groups']} groups): pressure MSE "
                      f"{g(r['pressure_mse_normalised_model'])} vs floor "
                      f"{g(r['pressure_mse_normalised_floor'])}; KL {g(r['kl_model'])} vs floor "
-                     f"{g(r['kl_floor'])}")
+                     f"{g(r['kl_floor'])} (a perfect model would score "
+                     f"{g(r.get('kl_perfect_model_ratio'))} x the KL floor)")
     b = out.get("baseline_test")
     if b:
         lines.append(f"PCA+GP baseline (test): pressure MSE {b['pressure_mse_normalised']:.3g} "

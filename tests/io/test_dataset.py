@@ -14,6 +14,7 @@ from calendaring.dataset import (
     noise_floor,
     read_dataset,
     resample_pressure,
+    sampled_kl_floor,
     smooth,
     synthetic_dataset,
     write_dataset,
@@ -102,6 +103,40 @@ def test_file_round_trip_and_noise_floor(tmp_path):
     rel = [g["pressure_rel_std"]["100%"] for g in nf["groups"]]
     assert 0.01 < np.mean(rel) < 0.12
     assert nf["kl_pairwise"] == pytest.approx(0.0, abs=1e-9)  # identical histograms
+
+
+def test_sampled_kl_floor_matches_the_chi_square_limit():
+    """Many events per run: 2 n KL(p_hat || q) -> chi^2 with K - 1 degrees of freedom, so a
+    perfect model scores (K - 1) / (2 n); against the pooled histogram of R equal runs
+    (which contains the run itself) the deviation shrinks by (1 - 1/R), so the floor reads
+    (K - 1) / (2 n) (R - 1) / R and the ratio is R / (R - 1)."""
+    q = np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 1.0], [3.0, 1.0, 2.0]])
+    q /= q.sum()
+    k, n, runs = q.size, 5000, 5
+    rng = np.random.default_rng(4)
+    counts = np.stack([rng.multinomial(n, q.ravel()).reshape(3, 3) for _ in range(runs)])
+    out = sampled_kl_floor(counts, n_sim=400, seed=1)
+    assert out["perfect"] == pytest.approx((k - 1) / (2 * n), rel=0.08)
+    assert out["floor_like"] == pytest.approx((k - 1) / (2 * n) * (runs - 1) / runs, rel=0.08)
+    assert out["ratio"] == pytest.approx(runs / (runs - 1), rel=0.05)
+    with pytest.raises(ConfigError):
+        sampled_kl_floor(counts[:1])
+
+
+def test_noise_floor_reports_the_perfect_model_ratio_for_counted_histograms():
+    ds = synthetic_dataset(30, seed=2, replicate_groups=2, replicates=4, noise=0.05)
+    assert noise_floor(ds)["kl_perfect_model_ratio"] is None  # smooth, not counted
+    rng = np.random.default_rng(0)
+    hist = np.zeros_like(ds.histogram)
+    n_events = np.full(len(ds.n_events), 300)
+    for r in range(len(hist)):
+        c = rng.multinomial(300, np.full(900, 1 / 900)).reshape(hist.shape[1:])
+        hist[r] = c / 300
+    from dataclasses import replace
+    counted = replace(ds, histogram=hist, n_events=n_events)
+    nf = noise_floor(counted)
+    assert nf["kl_perfect_model_ratio"] is not None and nf["kl_perfect_model_ratio"] > 1.0
+    assert all(g["kl_sampled"]["perfect"] > g["kl_sampled"]["floor_like"] for g in nf["groups"])
 
 
 def test_reader_rejects_foreign_and_incomplete_files(tmp_path):
