@@ -151,7 +151,8 @@ def main(argv=None) -> int:
     print(f"train {args.epochs} epochs: {train_s:.1f} s ({args.train_threads} thread); "
           f"test MSE {out['test']['pressure_mse_normalised']:.3g} (normalised), KL "
           f"{kl:.3g} (floor {floor}; a perfect model would score "
-          f"{rep.get('kl_perfect_model_ratio') if rep else None} x the floor); best throughput {best:.3g} sets/s float32, "
+          f"{rep.get('kl_perfect_model_ratio') if rep else None} x the floor); best "
+          f"throughput {best:.3g} sets/s float32, "
           f"{best_bf16:.3g} bfloat16 (MSE shift {cost['pressure_mse_normalised']:.2g}, KL "
           f"{cost['kl_mean']:.2g}); wrote {path}",
           file=sys.stderr)
