@@ -36,20 +36,13 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-import taichi as ti
 from IPython.display import Image, display
 
 import calendaring
 from calendaring.backend import init_taichi
 from calendaring.config import SimConfig, load_config_dict, pair_key
 from calendaring.contact_params import damping_ratio, reduced_modulus
-from calendaring.laws.eepa import (
-    ADHESION_SURFACE_ENERGY_AP,
-    eepa_adhesion_stiffness,
-    eepa_hysteretic_force,
-    eepa_loading_stiffness,
-    eepa_plastic_overlap,
-)
+from calendaring.laws import eepa
 from calendaring.simulation import Simulation
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
@@ -65,36 +58,17 @@ print(f"loading exponent n = {N}, adhesive exponent chi = {CHI}, adhesion mode "
 
 # %% [markdown]
 # ## 1. Force-overlap loop
-# The laws are Taichi functions (`@ti.func`); the library has no host-side evaluator, so
-# this cell maps them over a prescribed overlap path in a small kernel (the same wrapping
-# as `tests/physics/test_eepa_law.py`). The contact history `delta_max` is the running
-# maximum of the path, as in the engine. `k2 = k1 / (1 - lambda_p)` is the law's definition
-# (module docstring of `calendaring.laws.eepa`).
+# The laws are Taichi functions (`@ti.func`); `calendaring.laws.eepa.evaluate` maps the
+# engine's own functions over NumPy overlaps. Without `delta_max` the contact history is the
+# running maximum of the path, as in the engine. `k2 = k1 / (1 - lambda_p)` is the law's
+# definition (module docstring of `calendaring.laws.eepa`).
 
 # %%
-F64 = ti.types.ndarray(dtype=ti.f64, ndim=1)
-
-
-@ti.kernel
-def eepa_force_path(delta: F64, dmax: F64, force: F64, kadh_out: F64, e_star: ti.f64,
-                    r_star: ti.f64, lam: ti.f64, gamma: ti.f64):
-    for i in range(delta.shape[0]):
-        k1 = eepa_loading_stiffness(e_star, r_star, N)
-        k2 = k1 / (1.0 - lam)
-        dp = eepa_plastic_overlap(dmax[i], lam, N)
-        kadh = eepa_adhesion_stiffness(dp, r_star, k2, gamma, 0.0, N, CHI,
-                                       ADHESION_SURFACE_ENERGY_AP)
-        force[i] = eepa_hysteretic_force(delta[i], dp, k1, k2, kadh, 0.0, N, CHI)
-        kadh_out[i] = kadh
-
-
 def law_on_path(path, e_star, r_star, lam, gamma):
     """Force [N] and k_adh along an overlap path [m] (history = running maximum)."""
-    path = np.ascontiguousarray(path, dtype=np.float64)
-    hist = np.maximum.accumulate(path)
-    f, kadh = np.zeros_like(path), np.zeros_like(path)
-    eepa_force_path(path, hist, f, kadh, e_star, r_star, lam, gamma)
-    return f, kadh
+    res = eepa.evaluate(path, e_star=e_star, r_star=r_star, plasticity_ratio=lam,
+                        surface_energy=gamma, n=N, chi=CHI)
+    return res["force"], res["k_adh"]
 
 
 def material_pair(a, b, d_a, d_b):

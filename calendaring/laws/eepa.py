@@ -34,6 +34,7 @@ sqrt(m* k_eff), k_eff = n k1 delta^(n-1), g_n = 1 (n = 1) or sqrt(5/6) (n = 1.5)
 
 import math
 
+import numpy as np
 import taichi as ti
 
 ADHESION_SURFACE_ENERGY_AP = 0
@@ -158,3 +159,74 @@ def eepa_potential(delta, delta_p, k2, k_adh, f0, n: ti.template(), chi: ti.temp
         e += k2 * ((power_n(delta, n) * delta - power_n(x_c, n) * x_c) / (n + 1.0)
                    - dpn * (delta - x_c))
     return e
+
+
+# ---------------------------------------------------------------------- host-side evaluation
+ADHESION_MODES = {"surface_energy_ap": ADHESION_SURFACE_ENERGY_AP, "jkr_R": ADHESION_JKR_R,
+                  "direct_kadh": ADHESION_DIRECT}
+LAW_OUTPUTS = ("force", "potential", "k1", "k2", "delta_p", "k_adh")  # columns of _law_on_host
+
+
+@ti.kernel
+def _law_on_host(delta: ti.types.ndarray(dtype=ti.f64, ndim=1),
+                 dmax: ti.types.ndarray(dtype=ti.f64, ndim=1),
+                 out: ti.types.ndarray(dtype=ti.f64, ndim=2), e_star: ti.f64, r_star: ti.f64,
+                 lam: ti.f64, gamma: ti.f64, kadh_direct: ti.f64, f0: ti.f64,
+                 n: ti.template(), chi: ti.template(), mode: ti.template()):
+    for i in range(delta.shape[0]):
+        k1 = eepa_loading_stiffness(e_star, r_star, n)
+        k2 = k1 / (1.0 - lam)
+        dp = eepa_plastic_overlap(dmax[i], lam, n)
+        kadh = eepa_adhesion_stiffness(dp, r_star, k2, gamma, kadh_direct, n, chi, mode)
+        out[i, 0] = eepa_hysteretic_force(delta[i], dp, k1, k2, kadh, f0, n, chi)
+        out[i, 1] = eepa_potential(delta[i], dp, k2, kadh, f0, n, chi)
+        out[i, 2] = k1
+        out[i, 3] = k2
+        out[i, 4] = dp
+        out[i, 5] = kadh
+
+
+def evaluate(delta, delta_max=None, *, e_star: float, r_star: float,
+             plasticity_ratio: float = 0.0, surface_energy: float = 0.0,
+             pull_off_force: float = 0.0, adhesion_stiffness: float = 0.0, n: float = 1.5,
+             chi: float = 1.5, adhesion_mode: str = "surface_energy_ap") -> dict:
+    """The EEPA normal law on the host: the engine's own ``ti.func``s mapped over overlaps.
+
+    Args:
+        delta: overlaps [m] (1-D).
+        delta_max: the contact's largest overlap so far [m], per overlap or one value; None:
+            the running maximum of ``delta`` (a loading path, as the engine tracks it).
+        e_star, r_star: reduced modulus [Pa] and radius [m] of the pair.
+        plasticity_ratio: lambda_p in [0, 1) (0 with no adhesion: Hertz).
+        surface_energy: Delta gamma [J m^-2]; pull_off_force: f0 [N];
+            adhesion_stiffness: k_adh [N m^-chi] of mode ``direct_kadh``.
+        n, chi: loading and adhesive exponents (each distinct pair compiles once).
+        adhesion_mode: ``surface_energy_ap``, ``jkr_R`` or ``direct_kadh``.
+
+    Returns:
+        ``{name: array}`` for :data:`LAW_OUTPUTS`: force [N] (repulsive positive), the
+        elastic energy released by unloading to separation [J], k1, k2 [N m^-n], delta_p [m]
+        and k_adh [N m^-chi]. Taichi is started on the CPU when it is not running.
+    """
+    from calendaring.backend import current_backend, init_taichi
+    from calendaring.errors import ConfigError
+
+    if adhesion_mode not in ADHESION_MODES:
+        raise ConfigError("adhesion_mode", adhesion_mode, f"one of {sorted(ADHESION_MODES)}")
+    if not 0.0 <= plasticity_ratio < 1.0:
+        raise ConfigError("plasticity_ratio", plasticity_ratio, "in [0, 1)")
+    for key, v in (("e_star", e_star), ("r_star", r_star), ("n", n), ("chi", chi)):
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(key, v, "a finite number > 0")
+    d = np.ascontiguousarray(np.atleast_1d(np.asarray(delta, dtype=np.float64)))
+    if d.ndim != 1:
+        raise ConfigError("delta", f"array of shape {d.shape}", "a 1-D array of overlaps")
+    hist = np.maximum.accumulate(d) if delta_max is None else delta_max
+    hist = np.ascontiguousarray(np.broadcast_to(np.asarray(hist, dtype=np.float64), d.shape))
+    if current_backend() is None:
+        init_taichi(arch="cpu")
+    out = np.zeros((d.size, len(LAW_OUTPUTS)))
+    _law_on_host(d, hist, out, float(e_star), float(r_star), float(plasticity_ratio),
+                 float(surface_energy), float(adhesion_stiffness), float(pull_off_force),
+                 float(n), float(chi), ADHESION_MODES[adhesion_mode])
+    return {name: out[:, k] for k, name in enumerate(LAW_OUTPUTS)}

@@ -3,8 +3,9 @@
 Spec references: physics-spec.md section 2 (2.1 stiffnesses, 2.2 hysteretic force, 2.3 adhesion
 map, 2.4 damping) and section 9 checks T1 (EEPA loop, work ratio) and T3 (adhesion).
 
-The laws are ``@ti.func``; they are wrapped here in small ``@ti.kernel``s that map them over
-numpy arrays of overlaps, so one compiled kernel serves every test. The exponents are the static
+The laws are ``@ti.func``; the library's host evaluator ``eepa.evaluate`` maps them over
+numpy arrays of overlaps in one kernel, and two small ``@ti.kernel``s here call the adhesion
+modes and the damping coefficient directly. The exponents are the static
 Python constants n = chi = 1.5. The contact history (delta_max) is the running maximum of the
 prescribed overlap path, computed on the host exactly as calendaring.forces does
 (``dmax = max(delta_max, delta)``).
@@ -18,6 +19,7 @@ import taichi as ti
 
 from calendaring.config import SimConfig
 from calendaring.contact_params import damping_ratio, reduced_modulus
+from calendaring.laws import eepa
 from calendaring.laws.eepa import (
     ADHESION_DIRECT,
     ADHESION_JKR_R,
@@ -26,38 +28,15 @@ from calendaring.laws.eepa import (
     DAMPING_TANGENT_SQRT56,
     eepa_adhesion_stiffness,
     eepa_damping_coefficient,
-    eepa_hysteretic_force,
-    eepa_loading_stiffness,
-    eepa_plastic_overlap,
-    eepa_potential,
 )
 
 N_EXP = 1.5  # loading exponent n (static)
 CHI = 1.5  # adhesive exponent chi (static)
 
 F64_1D = ti.types.ndarray(dtype=ti.f64, ndim=1)
-F64_2D = ti.types.ndarray(dtype=ti.f64, ndim=2)
 
-# Output columns of _eepa_eval.
+# Output columns of evaluate() below (the order of eepa.LAW_OUTPUTS).
 C_F, C_POT, C_K1, C_K2, C_DP, C_KADH = range(6)
-
-
-@ti.kernel
-def _eepa_eval(delta: F64_1D, dmax: F64_1D, out: F64_2D, e_star: ti.f64, r_star: ti.f64,
-               lam: ti.f64, gamma: ti.f64, f0: ti.f64):
-    """Evaluate the EEPA law (mode surface_energy_ap) at delta[i] with history dmax[i]."""
-    for i in range(delta.shape[0]):
-        k1 = eepa_loading_stiffness(e_star, r_star, N_EXP)
-        k2 = k1 / (1.0 - lam)
-        dp = eepa_plastic_overlap(dmax[i], lam, N_EXP)
-        kadh = eepa_adhesion_stiffness(dp, r_star, k2, gamma, 0.0, N_EXP, CHI,
-                                       ADHESION_SURFACE_ENERGY_AP)
-        out[i, 0] = eepa_hysteretic_force(delta[i], dp, k1, k2, kadh, f0, N_EXP, CHI)
-        out[i, 1] = eepa_potential(delta[i], dp, k2, kadh, f0, N_EXP, CHI)
-        out[i, 2] = k1
-        out[i, 3] = k2
-        out[i, 4] = dp
-        out[i, 5] = kadh
 
 
 @ti.kernel
@@ -81,12 +60,11 @@ def _damping(out: F64_1D, m_star: ti.f64, k1: ti.f64, delta: ti.f64, beta_hat: t
 
 
 def evaluate(delta, dmax, e_star, r_star, lam, gamma=0.0, f0=0.0):
-    """Run _eepa_eval; dmax may be a scalar (fixed history) or an array."""
-    delta = np.ascontiguousarray(delta, dtype=np.float64)
-    dmax = np.ascontiguousarray(np.broadcast_to(dmax, delta.shape), dtype=np.float64)
-    out = np.zeros((delta.size, 6))
-    _eepa_eval(delta, dmax, out, e_star, r_star, lam, gamma, f0)
-    return out
+    """The law (mode surface_energy_ap) at each delta through ``eepa.evaluate``, as columns
+    C_F ... C_KADH; dmax may be a scalar (fixed history) or an array."""
+    res = eepa.evaluate(delta, dmax, e_star=e_star, r_star=r_star, plasticity_ratio=lam,
+                        surface_energy=gamma, pull_off_force=f0, n=N_EXP, chi=CHI)
+    return np.stack([res[k] for k in eepa.LAW_OUTPUTS], axis=1)
 
 
 def trapezoid_cumulative(f, x):
@@ -367,3 +345,28 @@ def test_normal_damping_coefficient():
     np.testing.assert_allclose(out[1], literal, rtol=1e-12)
     # n = 1: 2 beta_hat sqrt(m* k1) is exactly paper Eq. 10
     np.testing.assert_allclose(out[2], literal, rtol=1e-12)
+
+
+def test_host_evaluator_follows_the_path_history_and_rejects_bad_input():
+    """eepa.evaluate without delta_max takes the running maximum of the path (the engine's
+    history), and names the key, value and range of a bad argument."""
+    from calendaring.errors import ConfigError
+
+    path = np.concatenate([np.linspace(0, DMAX, 40), np.linspace(DMAX, 0.3 * DMAX, 20)])
+    auto = eepa.evaluate(path, e_star=E_CB_CB, r_star=R_CB_CB, plasticity_ratio=0.5,
+                         surface_energy=0.05)
+    given = eepa.evaluate(path, np.maximum.accumulate(path), e_star=E_CB_CB, r_star=R_CB_CB,
+                          plasticity_ratio=0.5, surface_energy=0.05)
+    for key in eepa.LAW_OUTPUTS:
+        np.testing.assert_array_equal(auto[key], given[key])
+    # unloading from DMAX: on the k2 line, below the virgin curve k1 delta^1.5
+    k1 = k1_analytic(E_CB_CB, R_CB_CB)
+    assert np.all(auto["force"][41:] < k1 * path[41:] ** 1.5)
+    np.testing.assert_allclose(auto["delta_p"][-1], 0.5 ** (1 / 1.5) * DMAX, rtol=1e-12)
+    for kwargs, key in (({"adhesion_mode": "glue"}, "adhesion_mode"),
+                        ({"plasticity_ratio": 1.0}, "plasticity_ratio"),
+                        ({"r_star": -1.0}, "r_star")):
+        args = {"e_star": E_CB_CB, "r_star": R_CB_CB, **kwargs}
+        with pytest.raises(ConfigError) as err:
+            eepa.evaluate(path, **args)
+        assert err.value.key == key
