@@ -18,8 +18,14 @@ breakage, energy ledger) of the paper preset: particle-steps/s at about 1k, 5k, 
 device memory per particle slot at the full pool capacity, and the first-compile and
 cached start-up times of a fresh process.
 
+``overhead``: the Hertz-mode step on a one-particle bed, per thread count in a fresh
+process: the per-step cost that does not grow with the bed (the kernel launch from Python,
+the host's flag check and, above one thread, the thread pool's dispatch of each parallel
+loop).
+
     python benchmarks/bench_dem.py versus --threads 2 --np 2
     python benchmarks/bench_dem.py scaling --threads 2
+    python benchmarks/bench_dem.py overhead --threads 1 2
 
 On a GPU (``--arch cuda``; ``versus`` then runs ours alone, ``scaling`` takes ``1M``, the 5k
 bed tiled 14 x 14):
@@ -575,6 +581,56 @@ def _software() -> dict:
             "modified": bool(dirty)}
 
 
+def overhead_once(threads: int, steps: int, repeat: int) -> dict:
+    """Steps/s of the Hertz-mode step on a one-particle bed: what a step costs beyond its
+    arithmetic (the kernel launch from Python, the host's flag check and, with more than
+    one thread, the thread pool's dispatch of each parallel loop)."""
+    from calendaring.backend import init_taichi
+    from calendaring.config import load_preset
+    from calendaring.simulation import Simulation
+
+    init_taichi(arch="cpu", threads=threads)
+    cfg = hertz_config(load_preset("paper"), threads)
+    sim = Simulation(cfg, capacity=8)
+    try:
+        sim.add_particles(np.array([[50e-6, 50e-6, 10e-6]]), np.array([4e-6]), np.array([0]))
+        sim.set_top_plate(z=70e-6, velocity=0.0)
+        sim.prime()
+        sim.run(1000)
+        rates = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            sim.run(steps)
+            rates.append(steps / (time.perf_counter() - t0))
+    finally:
+        sim.destroy()
+    best = max(rates)
+    return {"threads": threads, "steps": steps, "steps_per_s_runs": rates,
+            "steps_per_s_best": best, "us_per_step_best": 1e6 / best,
+            "us_per_step_median": 1e6 / float(np.median(rates))}
+
+
+def cmd_overhead(args) -> dict:
+    """:func:`overhead_once` for each thread count, each in a fresh process (Taichi starts
+    once per process)."""
+    import subprocess
+
+    rows = []
+    for t in args.threads:
+        out = subprocess.run(
+            [sys.executable, __file__, "overhead-one", "--threads", str(t), "--steps",
+             str(args.steps), "--repeat", str(args.repeat)],
+            check=True, capture_output=True, text=True).stdout
+        row = json.loads(out.strip().splitlines()[-1])
+        print(f"[overhead] {t} thread(s): {row['us_per_step_best']:.1f} us per step "
+              f"(best of {args.repeat})", flush=True)
+        rows.append(row)
+    return {"benchmark": "bench_dem overhead",
+            "problem": "Hertz-mode step (paper preset reduced to Hertz-Mindlin) on one "
+                       "particle: the per-step cost that does not scale with the bed",
+            "rows": rows}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -614,8 +670,22 @@ def main(argv=None) -> int:
     s.add_argument("--skip-startup", action="store_true")
     s.add_argument("--bed-dir", default=None, help="keep the compacted beds here (NPZ)")
     s.add_argument("--out", default=str(RESULTS / "bench_dem_scaling.json"))
+    o = sub.add_parser("overhead", help="per-step cost on a one-particle bed (launch, "
+                       "dispatch)")
+    o.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    o.add_argument("--steps", type=int, default=5000)
+    o.add_argument("--repeat", type=int, default=5)
+    o.add_argument("--out", default=str(RESULTS / "bench_dem_overhead.json"))
+    o1 = sub.add_parser("overhead-one", help=argparse.SUPPRESS)
+    o1.add_argument("--threads", type=int, required=True)
+    o1.add_argument("--steps", type=int, default=5000)
+    o1.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args(argv)
-    result = cmd_versus(args) if args.cmd == "versus" else cmd_scaling(args)
+    if args.cmd == "overhead-one":  # child of cmd_overhead: one JSON line on stdout
+        print(json.dumps(overhead_once(args.threads, args.steps, args.repeat)))
+        return 0
+    result = {"versus": cmd_versus, "scaling": cmd_scaling,
+              "overhead": cmd_overhead}[args.cmd](args)
     result.update({"software": _software(), "python": sys.version.split()[0],
                    "machine": platform.machine(),
                    "processor": platform.processor(), "cpus": os.cpu_count(),
