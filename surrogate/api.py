@@ -38,7 +38,7 @@ from surrogate.model import DualBranchMLP, ModelConfig
 
 PREDICT_BATCH = 2048  # rows per forward pass in predict()
 # Arithmetic of the forward pass in predict(): float32 (the trained weights) or bfloat16
-# autocast (matrix products in bfloat16, accumulated in float32; about twice the rows per
+# autocast (matrix products in bfloat16, accumulated in float32; 1.5-2 times the rows per
 # second on CPUs with AVX512-BF16 or AMX, slower on CPUs without them). On the reference
 # model bfloat16 moved the normalised pressures by an MSE of about 1e-6 and the
 # distributions by a KL of about 2e-5, against model errors of 9e-4 and 0.65

@@ -537,8 +537,9 @@ def summary_lines(out: dict) -> list[str]:
         lines.append(f"replicates ({r['groups']} groups): pressure MSE "
                      f"{g(r['pressure_mse_normalised_model'])} vs floor "
                      f"{g(r['pressure_mse_normalised_floor'])}; KL {g(r['kl_model'])} vs floor "
-                     f"{g(r['kl_floor'])} (a perfect model would score "
-                     f"{g(r.get('kl_perfect_model_ratio'))} x the KL floor)")
+                     f"{g(r['kl_floor'])}"
+                     + (f" (a perfect model would score {r['kl_perfect_model_ratio']:.3g} x "
+                        "the KL floor)" if r.get("kl_perfect_model_ratio") else ""))
     b = out.get("baseline_test")
     if b:
         lines.append(f"PCA+GP baseline (test): pressure MSE {b['pressure_mse_normalised']:.3g} "
