@@ -17,13 +17,36 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig, path: Path, dpi: float | None = None) -> Path:
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     try:
-        fig.savefig(tmp)
+        fig.savefig(tmp, dpi=dpi)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+    return path
+
+
+NOTEBOOK_OUT_ENV = "CALENDARING_NOTEBOOK_OUT"
+
+
+def notebook_output(name: str) -> Path:
+    """The output folder of notebook ``name``, created: ``$CALENDARING_NOTEBOOK_OUT/name``,
+    by default ``notebooks/_out/name`` in the checkout."""
+    default = Path(__file__).resolve().parents[1] / "notebooks" / "_out"
+    out = Path(os.environ.get(NOTEBOOK_OUT_ENV, default)) / name
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def show_figure(fig, path: str | Path, dpi: float = 120) -> Path:
+    """Save ``fig`` as ``path`` (under a temporary name, then renamed), close it and display
+    the image in the running notebook (IPython)."""
+    from IPython.display import Image, display
+
+    path = _save(fig, Path(path), dpi=dpi)
+    _pyplot().close(fig)
+    display(Image(filename=str(path)))
     return path
 
 

@@ -23,25 +23,20 @@
 
 # %%
 import json
-import os
 import time
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from IPython.display import Image, display
 
 import calendaring
 from calendaring.cli import summary
 from calendaring.config import load_preset
+from calendaring.plots import notebook_output, show_figure
 from calendaring.run import run
 from calendaring.runfile import read_run
 from calendaring.units import to_mpa, to_um
 
-ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "00_quickstart"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("00_quickstart")
 print(f"calendaring {calendaring.__version__}; outputs in {OUT}")
 
 # %% [markdown]
@@ -87,9 +82,7 @@ ax.set_ylabel("pressure [MPa]")
 ax.set_title(f"tiny preset, seed {rec.seed}")
 ax.legend(fontsize=8)
 fig.tight_layout()
-fig.savefig(OUT / "pressure_depth.png", dpi=120)
-plt.close(fig)
-display(Image(filename=str(OUT / "pressure_depth.png")))
+show_figure(fig, OUT / "pressure_depth.png")
 
 # %% [markdown]
 # ## Summary

@@ -30,25 +30,19 @@
 
 # %%
 import math
-import os
 import time
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from IPython.display import Image, display
 
-import calendaring
 from calendaring.backend import init_taichi
 from calendaring.config import SimConfig, load_config_dict, pair_key
 from calendaring.contact_params import damping_ratio, reduced_modulus
 from calendaring.laws import eepa
+from calendaring.plots import notebook_output, show_figure
 from calendaring.simulation import Simulation
 
-ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "10_contact_law"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("10_contact_law")
 init_taichi(arch="cpu", precision="f64")  # the settings Simulation uses by default
 CFG = SimConfig()  # the paper's defaults
 N = CFG.contact.loading_exponent  # n = 1.5 (Hertzian EEPA)
@@ -114,9 +108,7 @@ for ax, (label, (a, b, da, db, dmax)) in zip(axes, cases.items(), strict=True):
     loop_rows.append((label, dp_measured, dp_analytic, -f_un.min(), f_pull, w_unload / w_load,
                       kadh[unl][-1]))
 fig.tight_layout()
-fig.savefig(OUT / "eepa_loop.png", dpi=120)
-plt.close(fig)
-display(Image(filename=str(OUT / "eepa_loop.png")))
+show_figure(fig, OUT / "eepa_loop.png")
 
 print("W_unload / W_load: net work returned on the first unloading over the loading work "
       "(negative when the adhesive well takes more than the elastic recovery gives back)")
@@ -234,6 +226,4 @@ ax.invert_yaxis()
 ax.set_xlabel("coefficient of restitution [-]")
 ax.legend(fontsize=8)
 fig.tight_layout()
-fig.savefig(OUT / "restitution.png", dpi=120)
-plt.close(fig)
-display(Image(filename=str(OUT / "restitution.png")))
+show_figure(fig, OUT / "restitution.png")

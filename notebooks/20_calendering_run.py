@@ -26,34 +26,20 @@
 # configuration: the paper's figures are at 19.5 um of a 75 um coating (`quick` / `paper`).
 
 # %%
-import os
 import time
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from IPython.display import Image, display
 from matplotlib.collections import LineCollection
 
-import calendaring
 from analysis.render import BOND_COLOURS, bond_segments
 from calendaring.config import load_preset
+from calendaring.plots import notebook_output, show_figure
 from calendaring.run import run
 from calendaring.runfile import read_run
 from calendaring.units import to_mpa, to_um
 
-ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "20_calendering_run"
-OUT.mkdir(parents=True, exist_ok=True)
-
-
-def show(fig, name):
-    """Save a figure under OUT and display the PNG."""
-    fig.savefig(OUT / name, dpi=120)
-    plt.close(fig)
-    display(Image(filename=str(OUT / name)))
-
+OUT = notebook_output("20_calendering_run")
 
 # %%
 run_file = OUT / "tiny.h5"
@@ -85,7 +71,7 @@ ax.set_ylabel("pressure [MPa]")
 ax.legend(fontsize=8)
 ax.set_title("pressure-depth curve (grey lines: snapshots)", fontsize=9)
 fig.tight_layout()
-show(fig, "pressure_depth.png")
+show_figure(fig, OUT / "pressure_depth.png")
 for d in (2e-6, 4e-6, rec.stroke):
     print(f"top pressure at {to_um(d):.1f} um: {to_mpa(rec.pressure_at(d)):.1f} MPa")
 
@@ -112,7 +98,7 @@ axes[2].legend(fontsize=8)
 for ax in axes:
     ax.set_xlabel("calendering depth [um]")
 fig.tight_layout()
-show(fig, "porosity_coordination_bonds.png")
+show_figure(fig, OUT / "porosity_coordination_bonds.png")
 print(f"porosity {100 * s['porosity'][0]:.2f} % -> {100 * s['porosity'][-1]:.2f} %; bonds: "
       f"{int(s['bonds_intact'][0])} intact at the start, at the end {int(s['bonds_intact'][-1])}"
       f" intact, {int(s['bonds_failed_normal'][-1])} failed in tension, "
@@ -167,7 +153,7 @@ for ax in axes:
 axes[0].set_ylabel("z [um]")
 axes[0].set_ylim(to_um(first.z_bottom) - 5, to_um(first.z_top) + 5)
 fig.tight_layout()
-show(fig, "side_views_bonds.png")
+show_figure(fig, OUT / "side_views_bonds.png")
 
 # %% [markdown]
 # ## Particle-scale normal force against AM diameter (Fig. 7)
@@ -188,7 +174,7 @@ for ax, sn in zip(np.atleast_1d(axes), later, strict=True):
 np.atleast_1d(axes)[0].set_ylabel("total contact normal force [mN]")
 np.atleast_1d(axes)[0].legend(fontsize=8)
 fig.tight_layout()
-show(fig, "force_vs_diameter.png")
+show_figure(fig, OUT / "force_vs_diameter.png")
 sn = rec.snapshots[-1]
 sel = sn.material == am
 n_frag = int((sn.parent_id[sel] >= 0).sum())

@@ -26,33 +26,22 @@
 # cell calendered by 19.5 um.
 
 # %%
-import os
 import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-from IPython.display import Image, display
 
 import calendaring
 from calendaring.config import load_preset
 from calendaring.dataset import bin_centres, bin_events, centroids, histogram_edges, read_dataset
+from calendaring.plots import notebook_output, show_figure
 from calendaring.run import run
 from calendaring.runfile import read_run
 from calendaring.units import to_um
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "30_breakage_statistics"
-OUT.mkdir(parents=True, exist_ok=True)
-
-
-def show(fig, name):
-    """Save a figure under OUT and display the PNG."""
-    fig.savefig(OUT / name, dpi=120)
-    plt.close(fig)
-    display(Image(filename=str(OUT / name)))
-
+OUT = notebook_output("30_breakage_statistics")
 
 # %%
 run_file = OUT / "tiny.h5"
@@ -103,7 +92,7 @@ for ax, h, le, de, cc, title in (
     ax.legend(fontsize=8, loc="lower right")
     fig.colorbar(im, ax=ax, label="probability")
 fig.tight_layout()
-show(fig, "fig9_load_diameter.png")
+show_figure(fig, OUT / "fig9_load_diameter.png")
 print(f"probabilities sum to {hist.sum():.6f}; {int(np.count_nonzero(hist))} of 900 bins occupied")
 print(f"centroid (own edges): peak load {1e3 * c[0]:.3f} mN, parent diameter {to_um(c[1]):.2f} um")
 print(f"centroid (reference edges): peak load {1e3 * c_ref[0]:.3f} mN, parent diameter "
@@ -135,7 +124,7 @@ axes[2].plot(lim, lim, "k--", lw=0.8)
 axes[2].set_xlabel("fracture energy at breakage E'_f [J/kg]")
 axes[2].set_ylabel("stressing energy E_k [J/kg]")
 fig.tight_layout()
-show(fig, "events_vs_depth.png")
+show_figure(fig, OUT / "events_vs_depth.png")
 print(f"E_k / E'_f at breakage: min {np.min(b['stressing_energy'] / b['fracture_energy']):.4f}, "
       f"median {np.median(b['stressing_energy'] / b['fracture_energy']):.4f}")
 print(f"t10: median {100 * np.median(b['t10']):.1f} %, range {100 * b['t10'].min():.1f}-"
@@ -161,7 +150,7 @@ axes[1].scatter(to_um(pd_), b["n_fragments"], s=12)
 axes[1].set_xlabel("parent diameter [um]")
 axes[1].set_ylabel("fragments per event")
 fig.tight_layout()
-show(fig, "fragment_sizes.png")
+show_figure(fig, OUT / "fragment_sizes.png")
 
 vol_parent = np.sum(pd_**3)
 vol_frag = np.sum(fd**3)

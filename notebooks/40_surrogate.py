@@ -27,7 +27,6 @@
 # losses here are not converged and are not the paper's.
 
 # %%
-import os
 import time
 import warnings
 from pathlib import Path
@@ -38,6 +37,7 @@ from IPython.display import Image, Markdown, display
 
 import calendaring
 from calendaring.dataset import noise_floor, read_dataset
+from calendaring.plots import notebook_output
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 import surrogate  # noqa: E402
@@ -51,9 +51,7 @@ from surrogate.evaluate import (  # noqa: E402
 )
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "40_surrogate"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("40_surrogate")
 # One torch thread: with batches of 16 rows the network is too small for more, and on a
 # shared 2-core machine extra threads only wait on each other (7x slower measured).
 torch.set_num_threads(1)

@@ -26,7 +26,6 @@
 # autocorrelation diagnostics are printed) and the surrogate is under-trained.
 
 # %%
-import os
 import time
 import warnings
 from pathlib import Path
@@ -37,6 +36,7 @@ from IPython.display import Image, display
 
 import calendaring
 from calendaring.dataset import read_dataset
+from calendaring.plots import notebook_output
 from calendaring.units import to_mpa
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
@@ -48,9 +48,7 @@ from inverse.validate import row_target, select_rows  # noqa: E402
 from surrogate import SurrogateModel, TrainConfig, train_ensemble  # noqa: E402
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "50_inverse_calibration"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("50_inverse_calibration")
 torch.set_num_threads(1)  # small network, shared machine: one thread is fastest
 
 # %% [markdown]

@@ -26,7 +26,6 @@
 # intervals are wide; the convergence table says whether they meet the 0.05 criterion.
 
 # %%
-import os
 import time
 import warnings
 from pathlib import Path
@@ -37,6 +36,7 @@ from IPython.display import Image, display
 
 import calendaring
 from calendaring.dataset import read_dataset
+from calendaring.plots import notebook_output
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 from analysis.outputs import OUTPUTS  # noqa: E402
@@ -51,9 +51,7 @@ from analysis.trends import plot_trends, sweep  # noqa: E402
 from surrogate import SurrogateModel, TrainConfig, train  # noqa: E402
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "60_sobol_and_trends"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("60_sobol_and_trends")
 torch.set_num_threads(1)  # small network, shared machine: one thread is fastest
 
 # %%

@@ -27,17 +27,15 @@
 # 75 um coating).
 
 # %%
-import os
 import time
 import warnings
-from pathlib import Path
 
 import matplotlib.pyplot as plt
 import torch
 from IPython.display import Image, Markdown, display
 
-import calendaring
 from calendaring.config import load_preset
+from calendaring.plots import notebook_output, show_figure
 from calendaring.run import run
 from calendaring.runfile import read_run
 from calendaring.units import to_um
@@ -53,10 +51,7 @@ from analysis.microstructure import (  # noqa: E402
     voxelise,
 )
 
-ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "70_microstructure"
-OUT.mkdir(parents=True, exist_ok=True)
+OUT = notebook_output("70_microstructure")
 # TauFactor solves with torch: one thread (on a shared 2-core machine more threads only
 # wait on each other)
 torch.set_num_threads(1)
@@ -128,6 +123,4 @@ for ax, s in zip(axes, (first, last), strict=True):
     ax.set_xlabel("x [um]")
 axes[0].set_ylabel("z above the bottom plate [um]")
 fig.tight_layout()
-fig.savefig(OUT / "voxel_sections.png", dpi=120)
-plt.close(fig)
-display(Image(filename=str(OUT / "voxel_sections.png")))
+show_figure(fig, OUT / "voxel_sections.png")

@@ -31,17 +31,14 @@
 # from run-to-run scatter: read the curves as the method, not as the paper's result.
 
 # %%
-import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 import torch
 from IPython.display import Image, display
 
-import calendaring
 from analysis.compare import (
     TABLE5,
     execute,
@@ -53,12 +50,11 @@ from analysis.compare import (
     run_summary,
     target_snapshots,
 )
+from calendaring.plots import notebook_output
 from calendaring.runfile import read_run
 from calendaring.units import to_mpa, to_um
 
-ROOT = Path(calendaring.__file__).resolve().parents[1]
-OUT_ROOT = Path(os.environ.get("CALENDARING_NOTEBOOK_OUT", ROOT / "notebooks" / "_out"))
-OUT = OUT_ROOT / "80_psd_robustness"
+OUT = notebook_output("80_psd_robustness")
 (OUT / "runs").mkdir(parents=True, exist_ok=True)
 torch.set_num_threads(1)  # TauFactor (torch) on a shared 2-core machine
 PRESET, SEED, JOBS = "tiny", 0, 2
