@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calendaring.fileio import save_figure
 from calendaring.runfile import RunRecord
 from calendaring.units import to_mpa, to_um
 
@@ -15,16 +16,6 @@ def _pyplot():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _save(fig, path: Path, dpi: float | None = None) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    try:
-        fig.savefig(tmp, dpi=dpi)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 NOTEBOOK_OUT_ENV = "CALENDARING_NOTEBOOK_OUT"
@@ -44,8 +35,7 @@ def show_figure(fig, path: str | Path, dpi: float = 120) -> Path:
     the image in the running notebook (IPython)."""
     from IPython.display import Image, display
 
-    path = _save(fig, Path(path), dpi=dpi)
-    _pyplot().close(fig)
+    path = save_figure(fig, path, dpi=dpi)
     display(Image(filename=str(path)))
     return path
 
@@ -70,8 +60,7 @@ def plot_pressure(rec: RunRecord, path: str | Path) -> Path:
                  fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    out = _save(fig, Path(path))
-    plt.close(fig)
+    out = save_figure(fig, path, dpi="figure")  # the figure's own dpi
     return out
 
 
@@ -94,8 +83,7 @@ def plot_microstructure(rec: RunRecord, path: str | Path) -> Path:
     for ax in axes:
         ax.set_xlabel("calendering depth [um]")
     fig.tight_layout()
-    out = _save(fig, Path(path))
-    plt.close(fig)
+    out = save_figure(fig, path, dpi="figure")  # the figure's own dpi
     return out
 
 
@@ -136,6 +124,5 @@ def plot_breakage(rec: RunRecord, path: str | Path) -> Path:
     axes[2].set_ylabel("count")
     axes[2].legend(fontsize=8)
     fig.tight_layout()
-    out = _save(fig, Path(path))
-    plt.close(fig)
+    out = save_figure(fig, path, dpi="figure")  # the figure's own dpi
     return out
