@@ -21,7 +21,6 @@ are checked here, never in tests.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -32,6 +31,7 @@ import numpy as np
 import torch
 
 from calendaring.dataset import read_dataset, synthetic_dataset
+from calendaring.fileio import write_json
 from surrogate.api import PRECISIONS, SurrogateModel
 from surrogate.evaluate import model_metrics, replicate_comparison
 from surrogate.losses import kl_per_row
@@ -144,10 +144,7 @@ def main(argv=None) -> int:
             "throughput_bfloat16": best_bf16 >= TARGETS["predictions_per_second_min"]},
     }
     path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(out, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
+    write_json(path, out, indent=2)  # atomic; NaN -> null
     print(f"train {args.epochs} epochs: {train_s:.1f} s ({args.train_threads} thread); "
           f"test MSE {out['test']['pressure_mse_normalised']:.3g} (normalised), KL "
           f"{kl:.3g} (floor {floor}; a perfect model would score "

@@ -20,7 +20,6 @@ Writes JSON (atomically) to ``benchmarks/results/bench_surrogate_tuning.json``. 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -30,6 +29,7 @@ import numpy as np
 import torch
 
 from calendaring.dataset import read_dataset
+from calendaring.fileio import write_json
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.data import Normalisation
@@ -153,10 +153,7 @@ def main(argv=None) -> int:
            "pca_gp_learning_curve": curve,
            "target": {"pressure_mse_normalised_max": 3e-4, "kl_over_floor_max": 1.2}}
     path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(out, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
+    write_json(path, out, indent=2)  # atomic; NaN -> null
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

@@ -16,7 +16,6 @@ recorded because the machine is shared: compare figures side by side only.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
@@ -129,10 +128,9 @@ def main(argv=None) -> int:
               f"{cpu:.1f} s CPU", file=sys.stderr)
     report["load_average_end"] = os.getloadavg()
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(report, indent=2))
-    os.replace(tmp, out)
+    from calendaring.fileio import write_json
+
+    write_json(out, report, indent=2)  # atomic; NaN -> null
     print(f"wrote {out}", file=sys.stderr)
     return 0
 
