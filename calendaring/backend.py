@@ -101,16 +101,16 @@ def init_taichi(
 
 
 def cpu_pool_threads(threads: int) -> int:
-    """Taichi CPU worker threads for ``threads`` cores (0 = every core).
+    """Taichi CPU worker threads for ``threads`` cores (0 = every core): one per core.
 
-    One thread for one core (whose per-step loops run serialised, see
-    :class:`calendaring.forces.Kernels`); two per core otherwise: the step's loops last
-    well under a millisecond, and with one worker per core a worker that is still asleep
-    when the loop starts leaves its core idle (measured on a 2-core VM, 5,165 particles:
-    2 workers kept 1.2 cores busy, 790 steps/s; 4 workers 1.5 cores, 1,125 steps/s).
+    The steps run as multi-step launches whose workers spin at barriers
+    (``calendaring.forces.Kernels.burst``); with more pool threads than cores two workers
+    can share a core, and a barrier then waits for the scheduler's time slice (measured on
+    a 2-core VM, 100-step launches of a 2-particle bed: 1.3 ms with 2 pool threads, 12 ms
+    with 4). (One launch per step, the path before multi-step launches, ran faster with two
+    per core: a worker still asleep when a sub-millisecond loop starts leaves its core idle.)
     """
-    cores = threads or (os.cpu_count() or 1)
-    return 1 if cores == 1 else 2 * cores
+    return threads or (os.cpu_count() or 1)
 
 
 def serial_loops(threads: int) -> bool:
@@ -119,6 +119,16 @@ def serial_loops(threads: int) -> bool:
     loop stays parallel whatever ``numerics.threads`` says."""
     info = current_backend()
     return int(threads) == 1 and (info is None or info.arch == "cpu")
+
+
+def burst_workers(threads: int) -> int:
+    """Worker threads of a multi-step launch (``calendaring.forces.Kernels.burst``): one per
+    core asked for (``threads``, 0 = every core), 1 for a serial run; 0 on CUDA, where a
+    launch cannot hold its blocks at a barrier and every step is its own launch."""
+    info = current_backend()
+    if info is not None and info.arch != "cpu":
+        return 0
+    return max(1, int(threads) or (os.cpu_count() or 1))
 
 
 def current_backend() -> BackendInfo | None:

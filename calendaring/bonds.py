@@ -217,23 +217,27 @@ class BondTable:
         """The bond step. ``apply``: add the loads to the particles here (atomic adds);
         otherwise store them per bond (``active``, ``load_*``) for the engine's per-particle
         gather, which sums them in a fixed order."""
+        ti.loop_config(serialize=self.serial)
+        for b in range(self.n_bonds[None]):
+            self._bond_item(pool, b, dt, lx, ly, step, apply)
+
+    @ti.func
+    def _bond_item(self, pool: ti.template(), b, dt, lx, ly, step, apply: ti.template()):
+        """Bond b's step (the body of :meth:`_update_all`)."""
         sn = ti.static(self.cfg.normal_stiffness)
         st = ti.static(self.cfg.shear_stiffness)
         sig_c = ti.static(self.cfg.normal_strength)
         tau_c = ti.static(self.cfg.shear_strength)
-        ti.loop_config(serialize=self.serial)
-        for b in range(self.n_bonds[None]):
-            self.active[b] = 0
-            if self.state[b] == INTACT:
-                i = self.slot_a[b]
-                j = self.slot_b[b]
-                if pool.alive[i] == 0 or pool.alive[j] == 0:
-                    self.released[None] += self._stored(b)
-                    self.state[b] = REMOVED
-                    self.break_step[b] = step
-                else:
-                    self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step,
-                                     apply)
+        self.active[b] = 0
+        if self.state[b] == INTACT:
+            i = self.slot_a[b]
+            j = self.slot_b[b]
+            if pool.alive[i] == 0 or pool.alive[j] == 0:
+                self.released[None] += self._stored(b)
+                self.state[b] = REMOVED
+                self.break_step[b] = step
+            else:
+                self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step, apply)
 
     @ti.func
     def _update_one(self, pool: ti.template(), b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step,

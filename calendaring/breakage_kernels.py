@@ -399,8 +399,18 @@ class BreakageKernels:
         self.n_break[None] = 0
         ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
-            if pool.alive[i] and self.breakable[pool.material[i]]:
-                self._event_one(pool, i)
+            self._event_item(pool, i)
+        return self._n_to_replace()
+
+    @ti.func
+    def _event_item(self, pool: ti.template(), i):
+        """Slot i's part of :meth:`_events_all`."""
+        if pool.alive[i] and self.breakable[pool.material[i]]:
+            self._event_one(pool, i)
+
+    @ti.func
+    def _n_to_replace(self):
+        """Parents to replace after this step's breakage tests (at most the scratch size)."""
         return ti.min(self.n_break[None], ti.static(self.max_breaks))
 
     @ti.func

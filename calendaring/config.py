@@ -189,6 +189,7 @@ class NumericsConfig:
     density_scaling: float = 1.0  # mass scaling factor s (rho -> s rho) [-]; recorded in outputs
     skin: float = 0.3e-6  # Verlet skin [m]
     rebuild_check_interval: int = 10  # steps between host checks of the device flags
+    steps_per_launch: int = 1024  # CPU: most steps per kernel launch (1 = one launch per step)
     max_overlap_fraction: float = 0.5  # stop if overlap > this x smaller radius [-]
     pairs_per_particle: int = 12  # initial candidate-pair capacity per particle slot
     track_energy: bool = True  # accumulate the energy ledger every step
@@ -206,6 +207,8 @@ class NumericsConfig:
         _check("skin", self.skin, self.skin > 0, "> 0 m")
         k = self.rebuild_check_interval
         _check("rebuild_check_interval", k, 1 <= k <= 1000, "in [1, 1000]")
+        n = self.steps_per_launch
+        _check("steps_per_launch", n, 1 <= n <= 4096, "in [1, 4096]")
         o = self.max_overlap_fraction
         _check("max_overlap_fraction", o, 0.0 < o <= 2.0, "in (0, 2]")
         p = self.pairs_per_particle

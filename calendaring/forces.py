@@ -11,13 +11,20 @@ fused as far as the physics allows):
 
 Velocities held between steps are half-step velocities v_{n-1/2}; observables use the
 synchronised v_n = v_{n-1/2} + dt/2 a_n.
+
+On the CPU, :meth:`Kernels.burst` runs up to ``numerics.steps_per_launch`` whole steps in
+one launch: one persistent task per worker thread, each owning a fixed share of the
+particles, pairs and bonds, the phases of a step separated by spin barriers on atomic
+counters (about 1 us each, against ~50 us for a parallel loop of Taichi's CPU thread pool
+and ~65 us for a kernel launch from Python). The burst stops after the step whose device
+flags the host must act on, exactly where the one-launch-per-step path would act.
 """
 
 
 import numpy as np
 import taichi as ti
 
-from calendaring.backend import serial_loops
+from calendaring.backend import burst_workers, serial_loops
 from calendaring.breakage import breakable_mask, breakage_enabled
 from calendaring.config import SimConfig
 from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
@@ -43,15 +50,29 @@ L_DAMP_N, L_DAMP_T, L_FRICTION, L_ROLLING, L_HYST, L_PLATE = range(len(LEDGER))
 
 TRACE_LEN = 4096  # steps of plate forces buffered on the device between host reads
 
+# Multi-step launches (:meth:`Kernels.burst`, CPU only). Taichi's CPU range-for hands its
+# iterations out in blocks of 512 when the bound is known only at run time: a loop over
+# workers x GRAIN iterations gives one block, hence one pool thread, to each worker.
+GRAIN = 512
+# Spin iterations (~20-50 ns each) a worker waits for the others to start before the burst
+# is abandoned and the engine falls back to one launch per step, and the much longer wait at
+# a step barrier after which the run stops with GUARD_SYNC.
+RENDEZVOUS_SPINS = 1 << 24
+BARRIER_SPINS = 1 << 30
+# words of Kernels.sync
+S_ARRIVE, S_CLAIM, S_READY, S_GO, S_COUNT, S_GEN, S_STOP, S_ABORT = range(8)
+
 # Guard codes (first failure wins; the host turns them into SimulationError).
-GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN = 1, 2, 3, 4, 5
+GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN, GUARD_SYNC = 1, 2, 3, 4, 5, 6
 GUARD_NAMES = {GUARD_NAN: "non-finite position or velocity",
                GUARD_OVERLAP: "overlap above numerics.max_overlap_fraction of the smaller radius",
                GUARD_BOTTOM: "particle centre below the bottom plate by more than "
                              "max(0, numerics.max_overlap_fraction - 1) radii (left the cell)",
                GUARD_TOP: "particle centre above the top plate by more than "
                           "max(0, numerics.max_overlap_fraction - 1) radii (left the cell)",
-               GUARD_SKIN: "particle moved more than skin/2 between neighbour-list checks"}
+               GUARD_SKIN: "particle moved more than skin/2 between neighbour-list checks",
+               GUARD_SYNC: "a worker thread did not reach a step barrier of the multi-step "
+                           "launch in time (threads oversubscribed?)"}
 
 _ADHESION = {"surface_energy_ap": ADHESION_SURFACE_ENERGY_AP, "jkr_R": ADHESION_JKR_R,
              "direct_kadh": ADHESION_DIRECT}
@@ -78,6 +99,8 @@ class Kernels:
         # dispatch (about 45 us per parallel loop on a 2-core x86 VM, more than a small
         # bed's work); never on CUDA
         self.serial = serial_loops(cfg.numerics.threads)
+        # threads of a multi-step launch (0: none, one launch per step; see burst)
+        self.workers = burst_workers(cfg.numerics.threads)
         # The candidate list is rebuilt once some particle moved this fraction of skin/2
         # since the last build (skin/2 itself is the guard: beyond it a contact could be
         # missed). Flags read every step leave one step of travel to cover: 0.8; read every
@@ -115,6 +138,19 @@ class Kernels:
         fb.dense(ti.ij, (TRACE_LEN, 2)).place(self.trace)
         fb.place(self.guard_count, self.guard_code, self.guard_slot, self.guard_step,
                  self.guard_value, self.need_rebuild)
+        # multi-step launches: top-plate height and velocity of each step, each worker's
+        # share of the plate forces, the synchronisation words and the burst's outcome
+        self.plate_z = ti.field(ti.f64)
+        self.plate_v = ti.field(ti.f64)
+        fb.dense(ti.i, TRACE_LEN).place(self.plate_z, self.plate_v)
+        self.plate_part = ti.Vector.field(3, ti.f64)
+        fb.dense(ti.ij, (max(1, self.workers), 2)).place(self.plate_part)
+        self.sync = ti.field(ti.i32)
+        fb.dense(ti.i, 8).place(self.sync)
+        self.n_tasks = ti.field(ti.i32)
+        fb.place(self.n_tasks)
+        self.outcome = ti.field(ti.i32)  # (steps done, flags, parents to replace)
+        fb.dense(ti.i, 3).place(self.outcome)
         self._tree = fb.finalize()
         self.pair.from_numpy(pair_table(cfg))
         self.breakable.from_numpy(breakable_mask(cfg).astype(np.int32))
@@ -234,6 +270,183 @@ class Kernels:
             n_break = breakage._events_all(pool)
         return self._flags(pool) | (n_break << 3)
 
+    @ti.kernel
+    def burst(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+              bonds: ti.template(), breakage: ti.template(), n_max: ti.i32, kick0: ti.f64,
+              dt: ti.f64, gravity: ti.f64, z_bottom: ti.f64, lx: ti.f64, ly: ti.f64,
+              half_skin: ti.f64, step0: ti.i32, trace0: ti.i32, max_overlap_fraction: ti.f64,
+              interval: ti.i32) -> ti.types.vector(4, ti.i32):
+        """Up to ``n_max`` calls of :meth:`step` in one launch (CPU backend only).
+
+        Step s (from 0) takes the run from step ``step0 + s`` to ``step0 + s + 1`` with the
+        top plate at ``plate_z[s]`` moving at ``plate_v[s]`` (filled by the host), kick
+        ``kick0`` for s = 0 and 1 after, and writes its plate forces to
+        ``trace[trace0 + s]``. The burst ends after ``n_max`` steps, after a step that
+        flags parents to replace, or after a step whose number is a multiple of
+        ``interval`` with a device flag up (overflow, guard, rebuild): where the
+        one-launch-per-step loop acts on its flags. Each of the ``workers`` persistent tasks
+        owns a fixed share of the slots, pairs and bonds; a step's three phases (advance,
+        pairs and bonds, gather and breakage test) are separated by barriers.
+
+        Returns (steps done, flags of the last step as :meth:`_flags`, parents to replace,
+        status: 0 done, 1 the workers did not all start (nothing was done; run one launch
+        per step), 2 a worker missed a barrier (``GUARD_SYNC`` raised)).
+        """
+        for q in ti.static(range(8)):
+            self.sync[q] = 0
+        for q in ti.static(range(3)):
+            self.outcome[q] = 0
+        nw = ti.static(self.workers)
+        self.n_tasks[None] = nw * GRAIN  # a run-time bound: blocks of GRAIN iterations
+        if ti.static(nw == 1):
+            ti.loop_config(serialize=True)
+            for _ in range(1):
+                self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0, dt,
+                                   gravity, z_bottom, lx, ly, half_skin, step0, trace0,
+                                   max_overlap_fraction, interval, 0)
+        else:
+            for k in range(self.n_tasks[None]):
+                if k % GRAIN == 0:
+                    if self._rendezvous():
+                        self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0,
+                                           dt, gravity, z_bottom, lx, ly, half_skin, step0,
+                                           trace0, max_overlap_fraction, interval, k // GRAIN)
+        return ti.Vector([self.outcome[0], self.outcome[1], self.outcome[2],
+                          self.sync[S_ABORT]])
+
+    @ti.func
+    def _burst_worker(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+                      bonds: ti.template(), breakage: ti.template(), n_max, kick0, dt, gravity,
+                      z_bottom, lx, ly, half_skin, step0, trace0, max_overlap_fraction,
+                      interval, wk):
+        """Worker ``wk``'s part of :meth:`burst`."""
+        nw = ti.static(self.workers)
+        n_slots = pool.n_slots[None]
+        p_lo = wk * n_slots // nw
+        p_hi = (wk + 1) * n_slots // nw
+        n_pairs = table.n_pairs[None]
+        c_lo = wk * n_pairs // nw
+        c_hi = (wk + 1) * n_pairs // nw
+        b_lo = 0
+        b_hi = 0
+        if ti.static(bonds != None):  # noqa: E711
+            b_lo = wk * bonds.n_bonds[None] // nw
+            b_hi = (wk + 1) * bonds.n_bonds[None] // nw
+        for s in range(n_max):
+            step = step0 + s
+            kick = kick0
+            if s > 0:
+                kick = 1.0
+            z_top = self.plate_z[s]
+            v_top = self.plate_v[s]
+            if ti.static(breakage != None):  # noqa: E711
+                if wk == 0:
+                    breakage.n_break[None] = 0
+            self.plate_part[wk, 0] = ti.Vector([0.0, 0.0, 0.0])
+            self.plate_part[wk, 1] = ti.Vector([0.0, 0.0, 0.0])
+            for i in range(p_lo, p_hi):
+                if pool.alive[i]:
+                    self._advance_one(pool, i, kick, 1.0, dt, gravity, z_bottom, z_top, v_top,
+                                      lx, ly, half_skin, step, True, wk)
+            self._barrier()
+            for c in range(c_lo, c_hi):
+                self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step + 1)
+            if ti.static(bonds != None):  # noqa: E711
+                for b in range(b_lo, b_hi):
+                    bonds._bond_item(pool, b, dt, lx, ly, step + 1, False)
+            self._barrier()
+            for i in range(p_lo, p_hi):
+                if pool.alive[i]:
+                    self._gather_one(pool, table, bonds, i)
+                    if ti.static(breakage != None):  # noqa: E711
+                        breakage._event_item(pool, i)
+            if ti.static(nw == 1):
+                self._end_step(pool, breakage, s, n_max, step0, trace0, interval)
+            else:
+                gen = ti.atomic_add(self.sync[S_GEN], 0)
+                if ti.atomic_add(self.sync[S_COUNT], 1) == nw - 1:  # the last to arrive
+                    self._end_step(pool, breakage, s, n_max, step0, trace0, interval)
+                    ti.atomic_sub(self.sync[S_COUNT], nw)
+                    ti.atomic_add(self.sync[S_GEN], 1)
+                else:
+                    self._wait(gen)
+            if ti.atomic_add(self.sync[S_STOP], 0) != 0 or ti.atomic_add(
+                    self.sync[S_ABORT], 0) != 0:
+                break
+
+    @ti.func
+    def _end_step(self, pool: ti.template(), breakage: ti.template(), s, n_max, step0, trace0,
+                  interval):
+        """Close step s of a burst (one worker, the others held at the barrier): plate
+        forces summed over the workers in a fixed order, the trace row, the flags and
+        whether the burst stops here."""
+        fb = self.plate_part[0, 0]
+        ft = self.plate_part[0, 1]
+        for w in ti.static(range(1, self.workers)):
+            fb += self.plate_part[w, 0]
+            ft += self.plate_part[w, 1]
+        self.plate_force[0] = fb
+        self.plate_force[1] = ft
+        self.trace[trace0 + s, 0] = fb[2]
+        self.trace[trace0 + s, 1] = ft[2]
+        flags = self._flags(pool)
+        n_break = 0
+        if ti.static(breakage != None):  # noqa: E711
+            n_break = breakage._n_to_replace()
+        done = s + 1
+        stop = 0
+        if n_break > 0 or done >= n_max:
+            stop = 1
+        if (step0 + done) % interval == 0 and (flags & 7) != 0:
+            stop = 1
+        self.outcome[0] = done
+        self.outcome[1] = flags
+        self.outcome[2] = n_break
+        self.sync[S_STOP] = stop
+
+    @ti.func
+    def _rendezvous(self):
+        """Every worker of a burst waits here until all have started; True to go on. A
+        worker still alone after ``RENDEZVOUS_SPINS`` (the thread pool gave two workers'
+        blocks to one thread) calls the burst off for all, unless the last worker
+        arrived first: the first to claim the decision makes it."""
+        nw = ti.static(self.workers)
+        if ti.atomic_add(self.sync[S_ARRIVE], 1) == nw - 1:
+            if ti.atomic_add(self.sync[S_CLAIM], 1) == 0:
+                ti.atomic_add(self.sync[S_READY], 1)
+        spins = 0
+        while ti.atomic_add(self.sync[S_READY], 0) == 0:
+            spins += 1
+            if spins > RENDEZVOUS_SPINS:
+                spins = 0
+                if ti.atomic_add(self.sync[S_CLAIM], 1) == 0:
+                    self.sync[S_ABORT] = 1
+                    ti.atomic_add(self.sync[S_READY], 1)
+        return ti.atomic_add(self.sync[S_ABORT], 0) == 0
+
+    @ti.func
+    def _barrier(self):
+        """All workers of a burst reach this point before any goes on (sense by
+        generation: the last to arrive resets the count and opens the next generation)."""
+        nw = ti.static(self.workers)
+        if ti.static(nw > 1):
+            gen = ti.atomic_add(self.sync[S_GEN], 0)
+            if ti.atomic_add(self.sync[S_COUNT], 1) == nw - 1:
+                ti.atomic_sub(self.sync[S_COUNT], nw)
+                ti.atomic_add(self.sync[S_GEN], 1)
+            else:
+                self._wait(gen)
+
+    @ti.func
+    def _wait(self, gen):
+        spins = 0
+        while ti.atomic_add(self.sync[S_GEN], 0) == gen:
+            spins += 1
+            if spins > BARRIER_SPINS:
+                self._flag(GUARD_SYNC, 0, 0, 0.0)
+                ti.atomic_max(self.sync[S_ABORT], 2)
+                break
+
     @ti.func
     def _advance_all(self, pool: ti.template(), kick, drift, dt, gravity, z_bottom, z_top,
                      v_top, lx, ly, half_skin, step, trace_slot):
@@ -243,7 +456,7 @@ class Kernels:
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self._advance_one(pool, i, kick, drift, dt, gravity, z_bottom, z_top, v_top,
-                                  lx, ly, half_skin, step)
+                                  lx, ly, half_skin, step, False, 0)
         self.trace[trace_slot, 0] = self.plate_force[0][2]
         self.trace[trace_slot, 1] = self.plate_force[1][2]
 
@@ -285,7 +498,10 @@ class Kernels:
 
     @ti.func
     def _advance_one(self, pool: ti.template(), i, kick, drift, dt, gravity, z_bottom, z_top,
-                     v_top, lx, ly, half_skin, step):
+                     v_top, lx, ly, half_skin, step, part: ti.template(), worker):
+        """Particle i: kick, drift, guards, loads reset, plate contacts. The plate forces go
+        to ``plate_force`` (atomic adds), or with ``part`` to worker ``worker``'s share
+        ``plate_part[worker]`` (:meth:`burst`)."""
         inv_m = pool.inv_mass[i]
         inv_i = pool.inv_inertia[i]
         w = pool.angular_velocity[i]
@@ -327,15 +543,15 @@ class Kernels:
             pool.loading[i] = 0
         self._plate_contact(pool, i, 0, pool.wall_delta_max_bottom, pool.wall_delta_prev_bottom,
                             pool.wall_fhys_prev_bottom, pool.wall_spring_bottom,
-                            pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt)
+                            pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt, part, worker)
         self._plate_contact(pool, i, 1, pool.wall_delta_max_top, pool.wall_delta_prev_top,
                             pool.wall_fhys_prev_top, pool.wall_spring_top, pool.wall_work_top,
-                            r - (z_top - x[2]), v_top, dt)
+                            r - (z_top - x[2]), v_top, dt, part, worker)
 
     @ti.func
     def _plate_contact(self, pool: ti.template(), i, w: ti.template(), dmax_f: ti.template(),
                        prev_f: ti.template(), fprev_f: ti.template(), spring_f: ti.template(),
-                       work_f: ti.template(), delta, v_plate, dt):
+                       work_f: ti.template(), delta, v_plate, dt, part: ti.template(), worker):
         """Particle i against plate w (0 = bottom, normal from particle -z; 1 = top, +z)."""
         if delta > 0.0:
             nrm = ti.Vector([0.0, 0.0, 2.0 * w - 1.0])
@@ -364,7 +580,10 @@ class Kernels:
                 f_hys) * arm
             pool.normal_force_sum[i] += fn_abs
             pool.n_contacts[i] += 1
-            self.plate_force[w] -= force
+            if ti.static(part):
+                self.plate_part[worker, w] -= force
+            else:
+                self.plate_force[w] -= force
             if ti.static(self.track_energy):
                 ti.atomic_add(self.ledger[L_DAMP_N], d_n)
                 ti.atomic_add(self.ledger[L_DAMP_T], d_t)
@@ -395,11 +614,16 @@ class Kernels:
                    max_overlap_fraction, step):
         ti.loop_config(serialize=self.serial)
         for c in range(table.n_pairs[None]):
-            i = table.owner[c]
-            j = table.partner[c]
-            table.touch[c] = 0
-            if pool.alive[i] and pool.alive[j]:
-                self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
+            self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step)
+
+    @ti.func
+    def _pair_item(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, dt,
+                   max_overlap_fraction, step):
+        i = table.owner[c]
+        j = table.partner[c]
+        table.touch[c] = 0
+        if pool.alive[i] and pool.alive[j]:
+            self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
 
     @ti.kernel
     def gather_pair_forces(self, pool: ti.template(), table: ti.template(),
@@ -416,52 +640,57 @@ class Kernels:
         ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
-                f = ti.Vector([0.0, 0.0, 0.0])
-                t = ti.Vector([0.0, 0.0, 0.0])
-                roll = 0.0
-                fn = 0.0
-                st = 0.0
-                nc = 0
-                lo = table.seg_start[i]
-                for c in range(lo, lo + table.seg_count[i]):
-                    if table.touch[c]:
-                        f += table.pair_force[c]
-                        t += table.arm_i[c] * table.pair_nft[c]
-                        roll += table.roll_force[c] * table.arm_i[c]
-                        fn += table.normal_force[c]
-                        st += table.stress_i[c]
-                        nc += 1
-                lo = table.in_start[i]
-                for k in range(lo, lo + table.in_count[i]):
-                    c = table.in_pair[k]
-                    if table.touch[c]:
-                        f -= table.pair_force[c]
-                        t += table.arm_j[c] * table.pair_nft[c]
-                        roll += table.roll_force[c] * table.arm_j[c]
-                        fn += table.normal_force[c]
-                        st += table.stress_j[c]
-                        nc += 1
-                if nc > 0:
-                    pool.roll_magnitude[i] = pool.roll_magnitude[i] + roll
-                    pool.normal_force_sum[i] = pool.normal_force_sum[i] + fn
-                    pool.n_contacts[i] = pool.n_contacts[i] + nc
-                    if ti.static(self.breakage):
-                        pool.stress_sum[i] = pool.stress_sum[i] + st
-                if ti.static(bonds != None):  # noqa: E711
-                    lo = bonds.list_start[i]
-                    for k in range(lo, lo + bonds.list_count[i]):
-                        e = bonds.list_entry[k]
-                        if e >= 0:
-                            if bonds.active[e]:
-                                f += bonds.load_force[e]
-                                t += bonds.load_torque_a[e]
-                        else:
-                            b = -e - 1
-                            if bonds.active[b]:
-                                f -= bonds.load_force[b]
-                                t += bonds.load_torque_b[b]
-                pool.force[i] = pool.force[i] + f
-                pool.torque[i] = pool.torque[i] + t
+                self._gather_one(pool, table, bonds, i)
+
+    @ti.func
+    def _gather_one(self, pool: ti.template(), table: ti.template(), bonds: ti.template(), i):
+        """Live particle i: the sums of :meth:`_gather_all`."""
+        f = ti.Vector([0.0, 0.0, 0.0])
+        t = ti.Vector([0.0, 0.0, 0.0])
+        roll = 0.0
+        fn = 0.0
+        st = 0.0
+        nc = 0
+        lo = table.seg_start[i]
+        for c in range(lo, lo + table.seg_count[i]):
+            if table.touch[c]:
+                f += table.pair_force[c]
+                t += table.arm_i[c] * table.pair_nft[c]
+                roll += table.roll_force[c] * table.arm_i[c]
+                fn += table.normal_force[c]
+                st += table.stress_i[c]
+                nc += 1
+        lo = table.in_start[i]
+        for k in range(lo, lo + table.in_count[i]):
+            c = table.in_pair[k]
+            if table.touch[c]:
+                f -= table.pair_force[c]
+                t += table.arm_j[c] * table.pair_nft[c]
+                roll += table.roll_force[c] * table.arm_j[c]
+                fn += table.normal_force[c]
+                st += table.stress_j[c]
+                nc += 1
+        if nc > 0:
+            pool.roll_magnitude[i] = pool.roll_magnitude[i] + roll
+            pool.normal_force_sum[i] = pool.normal_force_sum[i] + fn
+            pool.n_contacts[i] = pool.n_contacts[i] + nc
+            if ti.static(self.breakage):
+                pool.stress_sum[i] = pool.stress_sum[i] + st
+        if ti.static(bonds != None):  # noqa: E711
+            lo = bonds.list_start[i]
+            for k in range(lo, lo + bonds.list_count[i]):
+                e = bonds.list_entry[k]
+                if e >= 0:
+                    if bonds.active[e]:
+                        f += bonds.load_force[e]
+                        t += bonds.load_torque_a[e]
+                else:
+                    b = -e - 1
+                    if bonds.active[b]:
+                        f -= bonds.load_force[b]
+                        t += bonds.load_torque_b[b]
+        pool.force[i] = pool.force[i] + f
+        pool.torque[i] = pool.torque[i] + t
 
     @ti.func
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,

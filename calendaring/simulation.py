@@ -21,7 +21,10 @@ Back on the host: every ``rebuild_check_interval`` steps the device flags are ac
 guard stops the run; the Verlet rebuild trigger rebuilds the candidate list before the
 next step: the list stays valid until a particle moved skin/2, which is a guard), and when
 some particle broke, its replacement by fragments, a neighbour rebuild and the forces of
-the step recomputed (see :mod:`calendaring.breakage_kernels`). The time step is
+the step recomputed (see :mod:`calendaring.breakage_kernels`). On the CPU up to
+``numerics.steps_per_launch`` such steps run in one launch (``Kernels.burst``, persistent
+worker threads meeting at barriers), which returns after the step whose flags the host must
+act on: the same steps, bit for bit on one thread. The time step is
 ``timestep_fraction`` x the Rayleigh time of the smallest particle (``calendaring.timestep``),
 and with breakage at most ``breakage.fragment_timestep_fraction`` x the Rayleigh time of the
 smallest fragment; it is fixed when the run starts.
@@ -29,6 +32,7 @@ smallest fragment; it is fixed when the run starts.
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -37,10 +41,12 @@ from calendaring.backend import init_taichi
 from calendaring.config import SimConfig
 from calendaring.contacts import ContactTable
 from calendaring.errors import ConfigError, SimulationError
-from calendaring.forces import GUARD_NAMES, GUARD_SKIN, LEDGER, TRACE_LEN, Kernels
+from calendaring.forces import GUARD_NAMES, GUARD_SKIN, GUARD_SYNC, LEDGER, TRACE_LEN, Kernels
 from calendaring.neighbours import CellGrid
 from calendaring.state import ParticlePool
 from calendaring.timestep import critical_timestep, rayleigh_time
+
+log = logging.getLogger(__name__)
 
 
 class Simulation:
@@ -79,6 +85,8 @@ class Simulation:
         self.gravity = float(cfg.domain.gravity)  # body force per unit mass along -z [m s^-2]
         self.bonds = None  # BondTable once create_bonds() ran
         self.check_interval = cfg.numerics.rebuild_check_interval  # steps between host checks
+        self.steps_per_launch = cfg.numerics.steps_per_launch
+        self._burst_ok = self.kernels.workers > 0  # CPU: multi-step launches
         self._trace_n = 0
         self._trace_z = np.zeros(TRACE_LEN)
         self._trace_steps = np.zeros(TRACE_LEN, np.int64)
@@ -318,46 +326,115 @@ class Simulation:
     def run(self, n_steps: int, callback=None, callback_interval: int = 0) -> None:
         """Advance ``n_steps`` time steps.
 
+        On the CPU up to ``numerics.steps_per_launch`` steps go to the device in one launch
+        (:meth:`Kernels.burst`); the result is the same as one launch per step (bit for bit
+        on one thread), the host acting on the device flags after the same steps.
+
         Args:
             n_steps: number of steps.
             callback: optional ``f(sim)`` called every ``callback_interval`` steps.
         """
         if not self._primed:
             self.prime()
-        interval = self.check_interval
-        d = self.cfg.domain
-        half_skin = 0.5 * self.cfg.numerics.skin
-        max_overlap = self.cfg.numerics.max_overlap_fraction
-        step_kernel = self.kernels.step
-        for _ in range(int(n_steps)):
-            self._update_plate()
-            kick = 0.5 if self._first_kick else 1.0
-            self._first_kick = False
-            # advance, pair forces and their gather in one launch; the candidate list is
-            # valid while no particle moved more than skin/2 (the guard), so a rebuild
-            # flagged by this step's drift is done after its forces, before the next step
-            breakage = self.breakage if self.breakage_active else None
-            flags = step_kernel(self.pool, self.table, self.grid, self.bonds, breakage, kick,
-                                self.dt, self.gravity, self.z_bottom, self.z_top, self.v_top,
-                                d.cell_x, d.cell_y, half_skin, self.step_count, self._trace_n,
-                                max_overlap)
-            self.step_count += 1
-            self.time += self.dt
-            self._trace_z[self._trace_n] = self.z_top
-            self._trace_steps[self._trace_n] = self.step_count
-            self._trace_n += 1
-            if self._trace_n == TRACE_LEN:
-                self._flush_trace()
-            if self.step_count % interval == 0:
-                if flags & 3:
-                    self.check()
-                if flags & 4:
-                    self.rebuild()
-            if flags >> 3:
-                self._replace(flags >> 3)
-            if callback is not None and callback_interval and self.step_count % callback_interval == 0:
+        remaining = int(n_steps)
+        while remaining > 0:
+            n = min(remaining, self.steps_per_launch, TRACE_LEN - self._trace_n)
+            if callback is not None and callback_interval:
+                n = min(n, callback_interval - self.step_count % callback_interval)
+            done = self._burst(n) if n > 1 and self._burst_ok else self._step()
+            remaining -= done
+            if callback is not None and callback_interval and \
+                    self.step_count % callback_interval == 0:
                 callback(self)
         self.check()
+
+    def _step(self) -> int:
+        """One step in one launch (:meth:`Kernels.step`); returns 1."""
+        d = self.cfg.domain
+        self._update_plate()
+        kick = 0.5 if self._first_kick else 1.0
+        self._first_kick = False
+        # advance, pair forces and their gather in one launch; the candidate list is valid
+        # while no particle moved more than skin/2 (the guard), so a rebuild flagged by
+        # this step's drift is done after its forces, before the next step
+        breakage = self.breakage if self.breakage_active else None
+        flags = self.kernels.step(self.pool, self.table, self.grid, self.bonds, breakage, kick,
+                                  self.dt, self.gravity, self.z_bottom, self.z_top, self.v_top,
+                                  d.cell_x, d.cell_y, 0.5 * self.cfg.numerics.skin,
+                                  self.step_count, self._trace_n,
+                                  self.cfg.numerics.max_overlap_fraction)
+        self.time += self.dt
+        self._after_steps(np.array([self.z_top]), flags & 7, flags >> 3)
+        return 1
+
+    def _plate_path(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Top-plate height [m], velocity [m/s] and time [s] after each of the next ``n``
+        steps, with the arithmetic of ``n`` calls of :meth:`_update_plate` (sequential
+        sums: the same bits)."""
+        dt = self.dt
+        steps = np.full(n + 1, dt)
+        steps[0] = self.time
+        t = np.add.accumulate(steps)  # time after each step: t[k + 1]
+        if self._plate_schedule is None:
+            dz = np.full(n + 1, self.v_top * dt)
+            dz[0] = self.z_top
+            return np.add.accumulate(dz)[1:], np.full(n, self.v_top), t[1:]
+        times, zs = self._plate_schedule
+        z = np.interp(t, times, zs)
+        z[0] = self.z_top
+        return z[1:], (z[1:] - z[:-1]) / dt, t[1:]
+
+    def _burst(self, n: int) -> int:
+        """Up to ``n`` steps in one launch (:meth:`Kernels.burst`); returns the steps done
+        (0 when the worker threads could not all start: the engine then stays with one
+        launch per step)."""
+        d = self.cfg.domain
+        z, v, t = self._plate_path(n)
+        k = self.kernels
+        buf = np.zeros(TRACE_LEN)
+        buf[:n] = z
+        k.plate_z.from_numpy(buf)
+        buf[:n] = v
+        k.plate_v.from_numpy(buf)
+        breakage = self.breakage if self.breakage_active else None
+        done, flags, n_break, status = (int(x) for x in k.burst(
+            self.pool, self.table, self.grid, self.bonds, breakage, n,
+            0.5 if self._first_kick else 1.0, self.dt, self.gravity, self.z_bottom, d.cell_x,
+            d.cell_y, 0.5 * self.cfg.numerics.skin, self.step_count, self._trace_n,
+            self.cfg.numerics.max_overlap_fraction, self.check_interval))
+        if status == 1:
+            self._burst_ok = False
+            log.warning("the %d worker threads of a multi-step launch did not all start; "
+                        "running one launch per step from here", k.workers)
+            return 0
+        if done:
+            self._first_kick = False
+            self.z_top = float(z[done - 1])
+            self.v_top = float(v[done - 1])
+            self.time = float(t[done - 1])
+        if status == 2:
+            self.check()
+        self._after_steps(z[:done], flags, n_break)
+        return done
+
+    def _after_steps(self, z: np.ndarray, flags: int, n_break: int) -> None:
+        """Book ``len(z)`` steps just done (top-plate heights ``z``) and act on the device
+        flags and breakage count of the last one."""
+        done = len(z)
+        lo = self._trace_n
+        self._trace_z[lo:lo + done] = z
+        self._trace_steps[lo:lo + done] = self.step_count + np.arange(1, done + 1)
+        self._trace_n += done
+        self.step_count += done
+        if self._trace_n == TRACE_LEN:
+            self._flush_trace()
+        if self.step_count % self.check_interval == 0:
+            if flags & 3:
+                self.check()
+            if flags & 4:
+                self.rebuild()
+        if n_break:
+            self._replace(n_break)
 
     # ------------------------------------------------------------------ stages
     def change_timestep(self, dt: float) -> None:
@@ -419,8 +496,12 @@ class Simulation:
         slot = int(self.kernels.guard_slot[None])
         step = int(self.kernels.guard_step[None])
         value = float(self.kernels.guard_value[None])
-        pid = int(self.pool.pid[slot])
         what = GUARD_NAMES.get(code, f"guard {code}")
+        if code == GUARD_SYNC:
+            raise SimulationError(f"simulation stopped after step {self.step_count}: {what}; "
+                                  "give the run its own cores or set "
+                                  "numerics.steps_per_launch = 1", step=self.step_count)
+        pid = int(self.pool.pid[slot])
         hint = " (reduce numerics.rebuild_check_interval or increase numerics.skin)" \
             if code == GUARD_SKIN else ""
         raise SimulationError(
