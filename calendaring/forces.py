@@ -24,7 +24,7 @@ flags the host must act on, exactly where the one-launch-per-step path would act
 import numpy as np
 import taichi as ti
 
-from calendaring.backend import burst_workers, serial_loops
+from calendaring.backend import burst_workers, cpu_pool_threads, serial_loops
 from calendaring.breakage import breakable_mask, breakage_enabled
 from calendaring.config import SimConfig
 from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
@@ -126,6 +126,12 @@ class Kernels:
         fb.dense(ti.ijk, (self.n_mat, 2, ncol)).place(self.plate)
         self.ledger = ti.field(ti.f64)
         fb.dense(ti.i, len(LEDGER)).place(self.ledger)
+        # on the CPU each pool thread adds its energy terms to its own row (16 doubles: no
+        # two threads on one cache line), folded into ``ledger`` at the end of each step;
+        # a shared atomic would bounce its cache line between cores at every contact
+        self.ledger_rows = cpu_pool_threads(cfg.numerics.threads) if self.workers else 0
+        self.ledger_part = ti.field(ti.f64)
+        fb.dense(ti.ij, (max(1, self.ledger_rows), 16)).place(self.ledger_part)
         self.plate_force = ti.Vector.field(3, ti.f64)  # force ON plate w (0 bottom, 1 top) [N]
         fb.dense(ti.i, 2).place(self.plate_force)
         self.guard_count = ti.field(ti.i32)
@@ -170,6 +176,30 @@ class Kernels:
             self.guard_slot[None] = slot
             self.guard_step[None] = step
             self.guard_value[None] = value
+
+    @ti.func
+    def _ledger_add(self, slot, value):
+        """Add ``value`` [J] to energy-ledger term ``slot`` (on the CPU through the calling
+        thread's row, see :meth:`_fold_ledger`)."""
+        if ti.static(self.ledger_rows == 0):
+            ti.atomic_add(self.ledger[slot], value)
+        else:
+            row = ti.global_thread_idx()
+            row = ti.min(ti.max(row, 0), ti.static(self.ledger_rows - 1))
+            ti.atomic_add(self.ledger_part[row, slot], value)
+
+    @ti.func
+    def _fold_ledger(self):
+        """Add the threads' rows to the ledger in a fixed order and clear them (serial code
+        at the end of every kernel that adds energy terms)."""
+        if ti.static(self.track_energy and self.ledger_rows > 0):
+            for k in ti.static(range(len(LEDGER))):
+                acc = self.ledger_part[0, k]
+                self.ledger_part[0, k] = 0.0
+                for r in ti.static(range(1, self.ledger_rows)):
+                    acc += self.ledger_part[r, k]
+                    self.ledger_part[r, k] = 0.0
+                self.ledger[k] += acc
 
     @ti.func
     def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, dt,
@@ -243,6 +273,7 @@ class Kernels:
         of this step go to ``trace[trace_slot]``."""
         self._advance_all(pool, kick, drift, dt, gravity, z_bottom, z_top, v_top, lx, ly,
                           half_skin, step, trace_slot)
+        self._fold_ledger()
 
     @ti.kernel
     def step(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
@@ -268,6 +299,7 @@ class Kernels:
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
             n_break = breakage._events_all(pool)
+        self._fold_ledger()
         return self._flags(pool) | (n_break << 3)
 
     @ti.kernel
@@ -389,6 +421,7 @@ class Kernels:
         self.plate_force[1] = ft
         self.trace[trace0 + s, 0] = fb[2]
         self.trace[trace0 + s, 1] = ft[2]
+        self._fold_ledger()
         flags = self._flags(pool)
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
@@ -509,7 +542,7 @@ class Kernels:
         v = pool.velocity[i] + kick * dt * inv_m * pool.force[i]
         w_new = w + kick * dt * inv_i * (pool.torque[i] + tau_roll)
         if ti.static(self.track_energy):
-            ti.atomic_add(self.ledger[L_ROLLING], -kick * dt * tau_roll.dot(0.5 * (w + w_new)))
+            self._ledger_add(L_ROLLING, -kick * dt * tau_roll.dot(0.5 * (w + w_new)))
         dx = drift * dt * v
         x = pool.position[i] + dx
         x[0] -= lx * ti.floor(x[0] / lx)
@@ -585,11 +618,11 @@ class Kernels:
             else:
                 self.plate_force[w] -= force
             if ti.static(self.track_energy):
-                ti.atomic_add(self.ledger[L_DAMP_N], d_n)
-                ti.atomic_add(self.ledger[L_DAMP_T], d_t)
-                ti.atomic_add(self.ledger[L_FRICTION], fric)
-                ti.atomic_add(self.ledger[L_HYST], hyst)
-                ti.atomic_add(self.ledger[L_PLATE], force[2] * v_plate * dt)
+                self._ledger_add(L_DAMP_N, d_n)
+                self._ledger_add(L_DAMP_T, d_t)
+                self._ledger_add(L_FRICTION, fric)
+                self._ledger_add(L_HYST, hyst)
+                self._ledger_add(L_PLATE, force[2] * v_plate * dt)
         elif dmax_f[i] > 0.0 or prev_f[i] != 0.0:
             if ti.static(self.breakage):  # the contact ended: bank its share (spec 5.4)
                 if pool.event_open[i]:
@@ -599,7 +632,7 @@ class Kernels:
             dmax_f[i] = 0.0
             spring_f[i] = ti.Vector([0.0, 0.0, 0.0])
             if ti.static(self.track_energy):
-                ti.atomic_add(self.ledger[L_HYST], -0.5 * fprev_f[i] * prev_f[i])
+                self._ledger_add(L_HYST, -0.5 * fprev_f[i] * prev_f[i])
             prev_f[i] = 0.0
             fprev_f[i] = 0.0
 
@@ -608,6 +641,7 @@ class Kernels:
                     dt: ti.f64, max_overlap_fraction: ti.f64, step: ti.i32):
         """Particle-particle contacts over the candidate pairs."""
         self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step)
+        self._fold_ledger()
 
     @ti.func
     def _pairs_all(self, pool: ti.template(), table: ti.template(), grid: ti.template(), dt,
@@ -696,59 +730,74 @@ class Kernels:
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,
                   dt, max_overlap_fraction, step):
         d = grid.minimum_image(pool.position[j] - pool.position[i])
-        dist = d.norm()
+        d2 = d.norm_sqr()
         ri = pool.radius[i]
         rj = pool.radius[j]
-        overlap = ri + rj - dist
+        reach = ri + rj
         ref = table.delta_ref[c]
-        if ref > 0.0 and overlap < ref:  # relatives born overlapping move apart: the
-            ref = ti.max(overlap, 0.0)  # reference overlap follows (running minimum)
-            table.delta_ref[c] = ref
-            if ref == 0.0:
-                table.sibling[c] = 0
-        delta = overlap - ref  # the contact law acts on the overlap beyond the reference
-        if delta > 0.0 and dist > 0.0:
-            nrm = d / dist
-            arm_i = ri - 0.5 * overlap
-            arm_j = rj - 0.5 * overlap
-            v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i * nrm)
-                     - pool.velocity[j] - pool.angular_velocity[j].cross(-arm_j * nrm))
-            mi = pool.mass[i]
-            mj = pool.mass[j]
-            a = pool.material[i]
-            b = pool.material[j]
-            (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
-                self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
-                ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
-                table.sibling[c])
-            table.stress_i[c] = 0.0
-            table.stress_j[c] = 0.0
-            if ti.static(self.breakage):
-                self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c])
-            table.delta_max[c] = dmax
-            table.spring[c] = s
-            table.delta_prev[c] = delta
-            table.fhys_prev[c] = f_hys
-            table.normal_force[c] = fn_abs
-            # this pair's contribution, summed per particle by gather_pair_forces
-            table.touch[c] = 1
-            table.pair_force[c] = force
-            table.pair_nft[c] = nrm.cross(f_t)
-            table.arm_i[c] = arm_i
-            table.arm_j[c] = arm_j
-            table.roll_force[c] = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
-            if delta > max_overlap_fraction * ti.min(ri, rj):
-                self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
-            if ti.static(self.track_energy):
-                ti.atomic_add(self.ledger[L_DAMP_N], d_n)
-                ti.atomic_add(self.ledger[L_DAMP_T], d_t)
-                ti.atomic_add(self.ledger[L_FRICTION], fric)
-                ti.atomic_add(self.ledger[L_HYST], hyst)
-        elif table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0:
+        touching = False
+        # most candidates are apart: the root only for those within reach (sqrt(fl(r^2))
+        # = r, so the test is the same as reach - |d| > 0) and for relatives
+        if ref > 0.0 or d2 < reach * reach:
+            dist = ti.sqrt(d2)
+            overlap = reach - dist
+            if ref > 0.0 and overlap < ref:  # relatives born overlapping move apart: the
+                ref = ti.max(overlap, 0.0)  # reference overlap follows (running minimum)
+                table.delta_ref[c] = ref
+                if ref == 0.0:
+                    table.sibling[c] = 0
+            delta = overlap - ref  # the contact law acts on the overlap beyond the reference
+            if delta > 0.0 and dist > 0.0:
+                touching = True
+                self._contact(pool, table, c, i, j, d, dist, overlap, delta, ri, rj, dt,
+                              max_overlap_fraction, step)
+        if not touching and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
             if ti.static(self.track_energy):  # last trapezoid down to separation
-                ti.atomic_add(self.ledger[L_HYST], -0.5 * table.fhys_prev[c] *
+                self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] *
                               table.delta_prev[c])
             self._end_contact(pool, table, c, i, j)
+
+    @ti.func
+    def _contact(self, pool: ti.template(), table: ti.template(), c, i, j, d, dist, overlap,
+                 delta, ri, rj, dt, max_overlap_fraction, step):
+        """Pair c = (i, j) touches (``delta`` > 0 beyond its reference overlap): the contact
+        law, the history, this step's contribution and the overlap guard."""
+        nrm = d / dist
+        arm_i = ri - 0.5 * overlap
+        arm_j = rj - 0.5 * overlap
+        v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i * nrm)
+                 - pool.velocity[j] - pool.angular_velocity[j].cross(-arm_j * nrm))
+        mi = pool.mass[i]
+        mj = pool.mass[j]
+        a = pool.material[i]
+        b = pool.material[j]
+        (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
+            self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
+            ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
+            table.sibling[c])
+        table.stress_i[c] = 0.0
+        table.stress_j[c] = 0.0
+        if ti.static(self.breakage):
+            self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c])
+        table.delta_max[c] = dmax
+        table.spring[c] = s
+        table.delta_prev[c] = delta
+        table.fhys_prev[c] = f_hys
+        table.normal_force[c] = fn_abs
+        # this pair's contribution, summed per particle by gather_pair_forces
+        table.touch[c] = 1
+        table.pair_force[c] = force
+        table.pair_nft[c] = nrm.cross(f_t)
+        table.arm_i[c] = arm_i
+        table.arm_j[c] = arm_j
+        table.roll_force[c] = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
+        if delta > max_overlap_fraction * ti.min(ri, rj):
+            self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
+        if ti.static(self.track_energy):
+            self._ledger_add(L_DAMP_N, d_n)
+            self._ledger_add(L_DAMP_T, d_t)
+            self._ledger_add(L_FRICTION, fric)
+            self._ledger_add(L_HYST, hyst)
 
     @ti.func
     def _end_contact(self, pool: ti.template(), table: ti.template(), c, i, j):
