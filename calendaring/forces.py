@@ -39,6 +39,7 @@ from calendaring.laws.eepa import (
     eepa_hysteretic_force,
     eepa_loading_stiffness,
     eepa_potential,
+    power_n,
 )
 from calendaring.laws.rolling import rolling_torque
 from calendaring.laws.tangential import coulomb_limit, rotate_spring, tangential_stiffness
@@ -158,9 +159,15 @@ class Kernels:
         self.outcome = ti.field(ti.i32)  # (steps done, flags, parents to replace)
         fb.dense(ti.i, 3).place(self.outcome)
         self._tree = fb.finalize()
-        self.pair.from_numpy(pair_table(cfg))
+        tables = (pair_table(cfg), plate_table(cfg))
+        # static switches of the contact law (see _law)
+        self.adhesive = any(bool(np.any(t[..., COL[k]] != 0.0)) for t in tables for k in (
+            "pull_off_force", "surface_energy", "adhesion_stiffness"))
+        self.plastic = any(bool(np.any(t[..., COL["plasticity_ratio"]] != 0.0))
+                           for t in tables)
+        self.pair.from_numpy(tables[0])
         self.breakable.from_numpy(breakable_mask(cfg).astype(np.int32))
-        self.plate.from_numpy(plate_table(cfg))
+        self.plate.from_numpy(tables[1])
 
     def destroy(self) -> None:
         """Free the device memory."""
@@ -215,21 +222,33 @@ class Kernels:
         n = ti.static(self.n)
         chi = ti.static(self.chi)
         e_star = tab[a, b, COL["e_star"]]
-        lam = tab[a, b, COL["plasticity_ratio"]]
-        f0 = tab[a, b, COL["pull_off_force"]]
-        if no_adhesion:
-            f0 = 0.0
         beta_hat = tab[a, b, COL["beta_hat"]]
         k1 = eepa_loading_stiffness(e_star, r_star, n)
-        k2 = k1 / (1.0 - lam)
         dmax = ti.max(delta_max, delta)
-        delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
-        k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
-                                        tab[a, b, COL["adhesion_stiffness"]], n, chi,
-                                        ti.static(self.adhesion_mode))
-        if no_adhesion:
-            k_adh = 0.0
-        f_hys = eepa_hysteretic_force(delta, delta_p, k1, k2, k_adh, f0, n, chi)
+        # compiled without the terms that every contact of the model has at zero (no
+        # adhesion: f0 = k_adh = 0; no plasticity: k2 = k1, delta_p = 0): the same numbers,
+        # f_hys = k1 delta^n to the bit
+        f0 = 0.0
+        k2 = k1
+        delta_p = 0.0
+        k_adh = 0.0
+        if ti.static(self.plastic):
+            k2 = k1 / (1.0 - tab[a, b, COL["plasticity_ratio"]])
+            delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
+        if ti.static(self.adhesive):
+            f0 = tab[a, b, COL["pull_off_force"]]
+            k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2,
+                                            tab[a, b, COL["surface_energy"]],
+                                            tab[a, b, COL["adhesion_stiffness"]], n, chi,
+                                            ti.static(self.adhesion_mode))
+            if no_adhesion:
+                f0 = 0.0
+                k_adh = 0.0
+        f_hys = 0.0
+        if ti.static(self.adhesive or self.plastic):
+            f_hys = eepa_hysteretic_force(delta, delta_p, k1, k2, k_adh, f0, n, chi)
+        else:
+            f_hys = k1 * power_n(delta, n)
         delta_dot = v_rel.dot(nrm)
         beta_n = eepa_damping_coefficient(m_star, k1, delta, beta_hat, n,
                                           ti.static(self.damping_mode))
@@ -242,7 +261,11 @@ class Kernels:
         s = s_old - k_t * v_t * dt
         beta_t = 2.0 * beta_hat * ti.sqrt(m_star * k_t)
         f_t = s - beta_t * v_t
-        limit = coulomb_limit(tab[a, b, COL["friction"]], f_hys, k_adh, delta, f0, chi)
+        limit = 0.0
+        if ti.static(self.adhesive):
+            limit = coulomb_limit(tab[a, b, COL["friction"]], f_hys, k_adh, delta, f0, chi)
+        else:
+            limit = tab[a, b, COL["friction"]] * ti.abs(f_hys)
         friction_loss = 0.0
         damp_t = beta_t * v_t.norm_sqr() * dt
         ft_mag = f_t.norm()
