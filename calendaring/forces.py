@@ -13,18 +13,20 @@ Velocities held between steps are half-step velocities v_{n-1/2}; observables us
 synchronised v_n = v_{n-1/2} + dt/2 a_n.
 
 On the CPU, :meth:`Kernels.burst` runs up to ``numerics.steps_per_launch`` whole steps in
-one launch: one persistent task per worker thread, each owning a fixed share of the
-particles, pairs and bonds, the phases of a step separated by spin barriers on atomic
-counters (about 1 us each, against ~50 us for a parallel loop of Taichi's CPU thread pool
-and ~65 us for a kernel launch from Python). The burst stops after the step whose device
-flags the host must act on, exactly where the one-launch-per-step path would act.
+one launch: one persistent task per worker thread, the workers claiming chunks of each
+phase's particles, pairs and bonds from shared counters, the phases of a step separated by
+spin barriers (about 1 us each, against ~50 us for a parallel loop of Taichi's CPU thread
+pool and ~65 us for a kernel launch from Python). The burst stops after the step whose
+device flags the host must act on, exactly where the one-launch-per-step path would act.
+Plate forces and energy terms are summed per chunk, then over the chunks in order: the
+same sums on any number of threads and on either path.
 """
 
 
 import numpy as np
 import taichi as ti
 
-from calendaring.backend import burst_workers, cpu_pool_threads, serial_loops
+from calendaring.backend import burst_workers, serial_loops
 from calendaring.breakage import breakable_mask, breakage_enabled
 from calendaring.config import SimConfig
 from calendaring.contact_params import COL, COLUMNS, pair_table, plate_table
@@ -48,6 +50,7 @@ from calendaring.laws.tangential import coulomb_limit, rotate_spring, tangential
 LEDGER = ("damping_normal", "damping_tangential", "friction", "rolling", "hysteretic_work",
           "plate_work")
 L_DAMP_N, L_DAMP_T, L_FRICTION, L_ROLLING, L_HYST, L_PLATE = range(len(LEDGER))
+N_LEDGER = len(LEDGER)
 
 TRACE_LEN = 4096  # steps of plate forces buffered on the device between host reads
 
@@ -60,8 +63,16 @@ GRAIN = 512
 # a step barrier after which the run stops with GUARD_SYNC.
 RENDEZVOUS_SPINS = 1 << 24
 BARRIER_SPINS = 1 << 30
-# words of Kernels.sync
-S_ARRIVE, S_CLAIM, S_READY, S_GO, S_COUNT, S_GEN, S_STOP, S_ABORT = range(8)
+# words of Kernels.sync (one cache line each): rendezvous, barrier, stop, status and the
+# work counters of the phases (chunks claimed)
+(S_ARRIVE, S_CLAIM, S_READY, S_COUNT, S_GEN, S_STOP, S_ABORT, S_ADVANCE, S_PAIRS, S_BONDS,
+ S_GATHER) = range(11)
+# Work is cut into chunks of at least CHUNK_P particle slots or CHUNK_C pairs or bonds, at
+# most MAX_CHUNKS of each. Each chunk adds its plate forces and energy terms to its own row,
+# summed in chunk order at the end of the step: the same sums whoever ran the chunk.
+CHUNK_P = 64
+CHUNK_C = 256
+MAX_CHUNKS = 1024
 
 # Guard codes (first failure wins; the host turns them into SimulationError).
 GUARD_NAN, GUARD_OVERLAP, GUARD_BOTTOM, GUARD_TOP, GUARD_SKIN, GUARD_SYNC = 1, 2, 3, 4, 5, 6
@@ -127,12 +138,14 @@ class Kernels:
         fb.dense(ti.ijk, (self.n_mat, 2, ncol)).place(self.plate)
         self.ledger = ti.field(ti.f64)
         fb.dense(ti.i, len(LEDGER)).place(self.ledger)
-        # on the CPU each pool thread adds its energy terms to its own row (16 doubles: no
-        # two threads on one cache line), folded into ``ledger`` at the end of each step;
-        # a shared atomic would bounce its cache line between cores at every contact
-        self.ledger_rows = cpu_pool_threads(cfg.numerics.threads) if self.workers else 0
+        # energy terms and plate forces by chunk (rows 0.. particle chunks, MAX_CHUNKS..
+        # pair chunks; 16 doubles a row: no two rows on one cache line), summed in a fixed
+        # order at the end of each step (a shared atomic would also bounce its cache line
+        # between cores at every contact)
         self.ledger_part = ti.field(ti.f64)
-        fb.dense(ti.ij, (max(1, self.ledger_rows), 16)).place(self.ledger_part)
+        fb.dense(ti.ij, (2 * MAX_CHUNKS, 16)).place(self.ledger_part)
+        self.plate_part = ti.Vector.field(3, ti.f64)
+        fb.dense(ti.ij, (MAX_CHUNKS, 2)).place(self.plate_part)
         self.plate_force = ti.Vector.field(3, ti.f64)  # force ON plate w (0 bottom, 1 top) [N]
         fb.dense(ti.i, 2).place(self.plate_force)
         self.guard_count = ti.field(ti.i32)
@@ -150,10 +163,8 @@ class Kernels:
         self.plate_z = ti.field(ti.f64)
         self.plate_v = ti.field(ti.f64)
         fb.dense(ti.i, TRACE_LEN).place(self.plate_z, self.plate_v)
-        self.plate_part = ti.Vector.field(3, ti.f64)
-        fb.dense(ti.ij, (max(1, self.workers), 2)).place(self.plate_part)
         self.sync = ti.field(ti.i32)
-        fb.dense(ti.i, 8).place(self.sync)
+        fb.dense(ti.ij, (16, 16)).place(self.sync)  # word w is sync[w, 0]
         self.n_tasks = ti.field(ti.i32)
         fb.place(self.n_tasks)
         self.outcome = ti.field(ti.i32)  # (steps done, flags, parents to replace)
@@ -185,28 +196,49 @@ class Kernels:
             self.guard_value[None] = value
 
     @ti.func
-    def _ledger_add(self, slot, value):
-        """Add ``value`` [J] to energy-ledger term ``slot`` (on the CPU through the calling
-        thread's row, see :meth:`_fold_ledger`)."""
-        if ti.static(self.ledger_rows == 0):
-            ti.atomic_add(self.ledger[slot], value)
-        else:
-            row = ti.global_thread_idx()
-            row = ti.min(ti.max(row, 0), ti.static(self.ledger_rows - 1))
-            ti.atomic_add(self.ledger_part[row, slot], value)
+    def _ledger_add(self, slot, value, row):
+        """Add ``value`` [J] to energy-ledger term ``slot`` through chunk row ``row``."""
+        self.ledger_part[row, slot] += value
 
     @ti.func
-    def _fold_ledger(self):
-        """Add the threads' rows to the ledger in a fixed order and clear them (serial code
-        at the end of every kernel that adds energy terms)."""
-        if ti.static(self.track_energy and self.ledger_rows > 0):
-            for k in ti.static(range(len(LEDGER))):
-                acc = self.ledger_part[0, k]
-                self.ledger_part[0, k] = 0.0
-                for r in ti.static(range(1, self.ledger_rows)):
-                    acc += self.ledger_part[r, k]
+    def _chunks(self, n, base):
+        """(chunk size, number of chunks) for ``n`` items: chunks of at least ``base``
+        items, at most MAX_CHUNKS of them."""
+        size = ti.max(base, (n + MAX_CHUNKS - 1) // MAX_CHUNKS)
+        return size, (n + size - 1) // size
+
+    @ti.func
+    def _fold_ledger(self, lo, hi, top: ti.template()):
+        """Add ledger rows ``lo:hi`` to the ledger in row order and clear them (``top``: at
+        the top level of a kernel, where the loop must be told to run serially)."""
+        if ti.static(self.track_energy):
+            acc = ti.Vector.zero(ti.f64, N_LEDGER)
+            if ti.static(top):
+                ti.loop_config(serialize=True)
+            for r in range(lo, hi):
+                for k in ti.static(range(N_LEDGER)):
+                    acc[k] += self.ledger_part[r, k]
                     self.ledger_part[r, k] = 0.0
-                self.ledger[k] += acc
+            for k in ti.static(range(N_LEDGER)):
+                self.ledger[k] += acc[k]
+
+    @ti.func
+    def _close_plates(self, n_chunks, trace_slot, top: ti.template()):
+        """The plate forces of this step: the chunk rows in order (then cleared) to
+        ``plate_force`` and ``trace[trace_slot]``."""
+        fb = ti.Vector([0.0, 0.0, 0.0])
+        ft = ti.Vector([0.0, 0.0, 0.0])
+        if ti.static(top):
+            ti.loop_config(serialize=True)
+        for r in range(n_chunks):
+            fb += self.plate_part[r, 0]
+            ft += self.plate_part[r, 1]
+            self.plate_part[r, 0] = ti.Vector([0.0, 0.0, 0.0])
+            self.plate_part[r, 1] = ti.Vector([0.0, 0.0, 0.0])
+        self.plate_force[0] = fb
+        self.plate_force[1] = ft
+        self.trace[trace_slot, 0] = fb[2]
+        self.trace[trace_slot, 1] = ft[2]
 
     @ti.func
     def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, dt,
@@ -295,8 +327,10 @@ class Kernels:
         """Kick, drift, guards, reset to gravity, particle-plate contacts; the plate z forces
         of this step go to ``trace[trace_slot]``."""
         self._advance_all(pool, kick, drift, dt, gravity, z_bottom, z_top, v_top, lx, ly,
-                          half_skin, step, trace_slot)
-        self._fold_ledger()
+                          half_skin, step)
+        _, n_p = self._chunks(pool.n_slots[None], CHUNK_P)
+        self._close_plates(n_p, trace_slot, True)
+        self._fold_ledger(0, n_p, True)
 
     @ti.kernel
     def step(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
@@ -314,7 +348,7 @@ class Kernels:
         replace this step.
         """
         self._advance_all(pool, kick, 1.0, dt, gravity, z_bottom, z_top, v_top, lx, ly,
-                          half_skin, step, trace_slot)
+                          half_skin, step)
         self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step + 1)
         if ti.static(bonds != None):  # noqa: E711 (a compile-time test in Taichi scope)
             bonds._update_all(pool, dt, lx, ly, step + 1, False)
@@ -322,7 +356,11 @@ class Kernels:
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
             n_break = breakage._events_all(pool)
-        self._fold_ledger()
+        _, n_p = self._chunks(pool.n_slots[None], CHUNK_P)
+        _, n_c = self._chunks(table.n_pairs[None], CHUNK_C)
+        self._close_plates(n_p, trace_slot, True)
+        self._fold_ledger(0, n_p, True)
+        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, True)
         return self._flags(pool) | (n_break << 3)
 
     @ti.kernel
@@ -339,16 +377,16 @@ class Kernels:
         ``trace[trace0 + s]``. The burst ends after ``n_max`` steps, after a step that
         flags parents to replace, or after a step whose number is a multiple of
         ``interval`` with a device flag up (overflow, guard, rebuild): where the
-        one-launch-per-step loop acts on its flags. Each of the ``workers`` persistent tasks
-        owns a fixed share of the slots, pairs and bonds; a step's three phases (advance,
-        pairs and bonds, gather and breakage test) are separated by barriers.
+        one-launch-per-step loop acts on its flags. The ``workers`` persistent tasks claim
+        chunks of each phase's work (advance; pairs and bonds; gather and breakage test)
+        from shared counters and meet at a barrier after each phase.
 
         Returns (steps done, flags of the last step as :meth:`_flags`, parents to replace,
         status: 0 done, 1 the workers did not all start (nothing was done; run one launch
         per step), 2 a worker missed a barrier (``GUARD_SYNC`` raised)).
         """
-        for q in ti.static(range(8)):
-            self.sync[q] = 0
+        for q in ti.static(range(16)):
+            self.sync[q, 0] = 0
         for q in ti.static(range(3)):
             self.outcome[q] = 0
         nw = ti.static(self.workers)
@@ -358,35 +396,39 @@ class Kernels:
             for _ in range(1):
                 self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0, dt,
                                    gravity, z_bottom, lx, ly, half_skin, step0, trace0,
-                                   max_overlap_fraction, interval, 0)
+                                   max_overlap_fraction, interval)
         else:
             for k in range(self.n_tasks[None]):
                 if k % GRAIN == 0:
                     if self._rendezvous():
                         self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0,
                                            dt, gravity, z_bottom, lx, ly, half_skin, step0,
-                                           trace0, max_overlap_fraction, interval, k // GRAIN)
+                                           trace0, max_overlap_fraction, interval)
         return ti.Vector([self.outcome[0], self.outcome[1], self.outcome[2],
-                          self.sync[S_ABORT]])
+                          self.sync[S_ABORT, 0]])
+
+    @ti.func
+    def _claim(self, word, n_chunks):
+        """The next chunk of the phase counted by ``sync[word]``, or -1 when none is left."""
+        k = ti.atomic_add(self.sync[word, 0], 1)
+        if k >= n_chunks:
+            k = -1
+        return k
 
     @ti.func
     def _burst_worker(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
                       bonds: ti.template(), breakage: ti.template(), n_max, kick0, dt, gravity,
                       z_bottom, lx, ly, half_skin, step0, trace0, max_overlap_fraction,
-                      interval, wk):
-        """Worker ``wk``'s part of :meth:`burst`."""
-        nw = ti.static(self.workers)
+                      interval):
+        """One worker's part of :meth:`burst`."""
         n_slots = pool.n_slots[None]
-        p_lo = wk * n_slots // nw
-        p_hi = (wk + 1) * n_slots // nw
         n_pairs = table.n_pairs[None]
-        c_lo = wk * n_pairs // nw
-        c_hi = (wk + 1) * n_pairs // nw
-        b_lo = 0
-        b_hi = 0
+        s_p, n_p = self._chunks(n_slots, CHUNK_P)
+        s_c, n_c = self._chunks(n_pairs, CHUNK_C)
+        n_bonds = 0
         if ti.static(bonds != None):  # noqa: E711
-            b_lo = wk * bonds.n_bonds[None] // nw
-            b_hi = (wk + 1) * bonds.n_bonds[None] // nw
+            n_bonds = bonds.n_bonds[None]
+        s_b, n_b = self._chunks(n_bonds, CHUNK_C)
         for s in range(n_max):
             step = step0 + s
             kick = kick0
@@ -395,56 +437,65 @@ class Kernels:
             z_top = self.plate_z[s]
             v_top = self.plate_v[s]
             if ti.static(breakage != None):  # noqa: E711
-                if wk == 0:
-                    breakage.n_break[None] = 0
-            self.plate_part[wk, 0] = ti.Vector([0.0, 0.0, 0.0])
-            self.plate_part[wk, 1] = ti.Vector([0.0, 0.0, 0.0])
-            for i in range(p_lo, p_hi):
-                if pool.alive[i]:
-                    self._advance_one(pool, i, kick, 1.0, dt, gravity, z_bottom, z_top, v_top,
-                                      lx, ly, half_skin, step, True, wk)
+                breakage.n_break[None] = 0  # every worker: before the first barrier
+            while True:
+                k = self._claim(S_ADVANCE, n_p)
+                if k < 0:
+                    break
+                for i in range(k * s_p, ti.min(n_slots, (k + 1) * s_p)):
+                    if pool.alive[i]:
+                        self._advance_one(pool, i, kick, 1.0, dt, gravity, z_bottom, z_top,
+                                          v_top, lx, ly, half_skin, step, k)
             self._barrier()
-            for c in range(c_lo, c_hi):
-                self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step + 1)
+            while True:
+                k = self._claim(S_PAIRS, n_c)
+                if k < 0:
+                    break
+                for c in range(k * s_c, ti.min(n_pairs, (k + 1) * s_c)):
+                    self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step + 1,
+                                    MAX_CHUNKS + k)
             if ti.static(bonds != None):  # noqa: E711
-                for b in range(b_lo, b_hi):
-                    bonds._bond_item(pool, b, dt, lx, ly, step + 1, False)
+                while True:
+                    k = self._claim(S_BONDS, n_b)
+                    if k < 0:
+                        break
+                    for b in range(k * s_b, ti.min(n_bonds, (k + 1) * s_b)):
+                        bonds._bond_item(pool, b, dt, lx, ly, step + 1, False)
             self._barrier()
-            for i in range(p_lo, p_hi):
-                if pool.alive[i]:
-                    self._gather_one(pool, table, bonds, i)
-                    if ti.static(breakage != None):  # noqa: E711
-                        breakage._event_item(pool, i)
+            while True:
+                k = self._claim(S_GATHER, n_p)
+                if k < 0:
+                    break
+                for i in range(k * s_p, ti.min(n_slots, (k + 1) * s_p)):
+                    if pool.alive[i]:
+                        self._gather_one(pool, table, bonds, i)
+                        if ti.static(breakage != None):  # noqa: E711
+                            breakage._event_item(pool, i)
+            nw = ti.static(self.workers)
             if ti.static(nw == 1):
-                self._end_step(pool, breakage, s, n_max, step0, trace0, interval)
+                self._end_step(pool, breakage, s, n_max, step0, trace0, interval, n_p, n_c)
             else:
-                gen = ti.atomic_add(self.sync[S_GEN], 0)
-                if ti.atomic_add(self.sync[S_COUNT], 1) == nw - 1:  # the last to arrive
-                    self._end_step(pool, breakage, s, n_max, step0, trace0, interval)
-                    ti.atomic_sub(self.sync[S_COUNT], nw)
-                    ti.atomic_add(self.sync[S_GEN], 1)
+                gen = ti.atomic_add(self.sync[S_GEN, 0], 0)
+                if ti.atomic_add(self.sync[S_COUNT, 0], 1) == nw - 1:  # the last to arrive
+                    self._end_step(pool, breakage, s, n_max, step0, trace0, interval, n_p,
+                                   n_c)
+                    ti.atomic_sub(self.sync[S_COUNT, 0], nw)
+                    ti.atomic_add(self.sync[S_GEN, 0], 1)
                 else:
                     self._wait(gen)
-            if ti.atomic_add(self.sync[S_STOP], 0) != 0 or ti.atomic_add(
-                    self.sync[S_ABORT], 0) != 0:
+            if ti.atomic_add(self.sync[S_STOP, 0], 0) != 0 or ti.atomic_add(
+                    self.sync[S_ABORT, 0], 0) != 0:
                 break
 
     @ti.func
     def _end_step(self, pool: ti.template(), breakage: ti.template(), s, n_max, step0, trace0,
-                  interval):
-        """Close step s of a burst (one worker, the others held at the barrier): plate
-        forces summed over the workers in a fixed order, the trace row, the flags and
-        whether the burst stops here."""
-        fb = self.plate_part[0, 0]
-        ft = self.plate_part[0, 1]
-        for w in ti.static(range(1, self.workers)):
-            fb += self.plate_part[w, 0]
-            ft += self.plate_part[w, 1]
-        self.plate_force[0] = fb
-        self.plate_force[1] = ft
-        self.trace[trace0 + s, 0] = fb[2]
-        self.trace[trace0 + s, 1] = ft[2]
-        self._fold_ledger()
+                  interval, n_p, n_c):
+        """Close step s of a burst (one worker, the others held at the barrier): the plate
+        forces and energy terms summed in chunk order, the trace row, the flags, whether
+        the burst stops here, and the phases' work counters reset."""
+        self._close_plates(n_p, trace0 + s, False)
+        self._fold_ledger(0, n_p, False)
+        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, False)
         flags = self._flags(pool)
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
@@ -458,7 +509,9 @@ class Kernels:
         self.outcome[0] = done
         self.outcome[1] = flags
         self.outcome[2] = n_break
-        self.sync[S_STOP] = stop
+        for w in ti.static((S_ADVANCE, S_PAIRS, S_BONDS, S_GATHER)):
+            self.sync[w, 0] = 0
+        self.sync[S_STOP, 0] = stop
 
     @ti.func
     def _rendezvous(self):
@@ -467,18 +520,18 @@ class Kernels:
         blocks to one thread) calls the burst off for all, unless the last worker
         arrived first: the first to claim the decision makes it."""
         nw = ti.static(self.workers)
-        if ti.atomic_add(self.sync[S_ARRIVE], 1) == nw - 1:
-            if ti.atomic_add(self.sync[S_CLAIM], 1) == 0:
-                ti.atomic_add(self.sync[S_READY], 1)
+        if ti.atomic_add(self.sync[S_ARRIVE, 0], 1) == nw - 1:
+            if ti.atomic_add(self.sync[S_CLAIM, 0], 1) == 0:
+                ti.atomic_add(self.sync[S_READY, 0], 1)
         spins = 0
-        while ti.atomic_add(self.sync[S_READY], 0) == 0:
+        while ti.atomic_add(self.sync[S_READY, 0], 0) == 0:
             spins += 1
             if spins > RENDEZVOUS_SPINS:
                 spins = 0
-                if ti.atomic_add(self.sync[S_CLAIM], 1) == 0:
-                    self.sync[S_ABORT] = 1
-                    ti.atomic_add(self.sync[S_READY], 1)
-        return ti.atomic_add(self.sync[S_ABORT], 0) == 0
+                if ti.atomic_add(self.sync[S_CLAIM, 0], 1) == 0:
+                    self.sync[S_ABORT, 0] = 1
+                    ti.atomic_add(self.sync[S_READY, 0], 1)
+        return ti.atomic_add(self.sync[S_ABORT, 0], 0) == 0
 
     @ti.func
     def _barrier(self):
@@ -486,35 +539,32 @@ class Kernels:
         generation: the last to arrive resets the count and opens the next generation)."""
         nw = ti.static(self.workers)
         if ti.static(nw > 1):
-            gen = ti.atomic_add(self.sync[S_GEN], 0)
-            if ti.atomic_add(self.sync[S_COUNT], 1) == nw - 1:
-                ti.atomic_sub(self.sync[S_COUNT], nw)
-                ti.atomic_add(self.sync[S_GEN], 1)
+            gen = ti.atomic_add(self.sync[S_GEN, 0], 0)
+            if ti.atomic_add(self.sync[S_COUNT, 0], 1) == nw - 1:
+                ti.atomic_sub(self.sync[S_COUNT, 0], nw)
+                ti.atomic_add(self.sync[S_GEN, 0], 1)
             else:
                 self._wait(gen)
 
     @ti.func
     def _wait(self, gen):
         spins = 0
-        while ti.atomic_add(self.sync[S_GEN], 0) == gen:
+        while ti.atomic_add(self.sync[S_GEN, 0], 0) == gen:
             spins += 1
             if spins > BARRIER_SPINS:
                 self._flag(GUARD_SYNC, 0, 0, 0.0)
-                ti.atomic_max(self.sync[S_ABORT], 2)
+                ti.atomic_max(self.sync[S_ABORT, 0], 2)
                 break
 
     @ti.func
     def _advance_all(self, pool: ti.template(), kick, drift, dt, gravity, z_bottom, z_top,
-                     v_top, lx, ly, half_skin, step, trace_slot):
-        self.plate_force[0] = ti.Vector([0.0, 0.0, 0.0])
-        self.plate_force[1] = ti.Vector([0.0, 0.0, 0.0])
+                     v_top, lx, ly, half_skin, step):
+        s_p, _ = self._chunks(pool.n_slots[None], CHUNK_P)
         ti.loop_config(serialize=self.serial)
         for i in range(pool.n_slots[None]):
             if pool.alive[i]:
                 self._advance_one(pool, i, kick, drift, dt, gravity, z_bottom, z_top, v_top,
-                                  lx, ly, half_skin, step, False, 0)
-        self.trace[trace_slot, 0] = self.plate_force[0][2]
-        self.trace[trace_slot, 1] = self.plate_force[1][2]
+                                  lx, ly, half_skin, step, i // s_p)
 
     @ti.func
     def _flags(self, pool: ti.template()):
@@ -554,10 +604,9 @@ class Kernels:
 
     @ti.func
     def _advance_one(self, pool: ti.template(), i, kick, drift, dt, gravity, z_bottom, z_top,
-                     v_top, lx, ly, half_skin, step, part: ti.template(), worker):
-        """Particle i: kick, drift, guards, loads reset, plate contacts. The plate forces go
-        to ``plate_force`` (atomic adds), or with ``part`` to worker ``worker``'s share
-        ``plate_part[worker]`` (:meth:`burst`)."""
+                     v_top, lx, ly, half_skin, step, row):
+        """Particle i: kick, drift, guards, loads reset, plate contacts. Plate forces and
+        energy terms go to chunk row ``row``."""
         inv_m = pool.inv_mass[i]
         inv_i = pool.inv_inertia[i]
         w = pool.angular_velocity[i]
@@ -565,7 +614,7 @@ class Kernels:
         v = pool.velocity[i] + kick * dt * inv_m * pool.force[i]
         w_new = w + kick * dt * inv_i * (pool.torque[i] + tau_roll)
         if ti.static(self.track_energy):
-            self._ledger_add(L_ROLLING, -kick * dt * tau_roll.dot(0.5 * (w + w_new)))
+            self._ledger_add(L_ROLLING, -kick * dt * tau_roll.dot(0.5 * (w + w_new)), row)
         dx = drift * dt * v
         x = pool.position[i] + dx
         x[0] -= lx * ti.floor(x[0] / lx)
@@ -599,15 +648,15 @@ class Kernels:
             pool.loading[i] = 0
         self._plate_contact(pool, i, 0, pool.wall_delta_max_bottom, pool.wall_delta_prev_bottom,
                             pool.wall_fhys_prev_bottom, pool.wall_spring_bottom,
-                            pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt, part, worker)
+                            pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt, row)
         self._plate_contact(pool, i, 1, pool.wall_delta_max_top, pool.wall_delta_prev_top,
                             pool.wall_fhys_prev_top, pool.wall_spring_top, pool.wall_work_top,
-                            r - (z_top - x[2]), v_top, dt, part, worker)
+                            r - (z_top - x[2]), v_top, dt, row)
 
     @ti.func
     def _plate_contact(self, pool: ti.template(), i, w: ti.template(), dmax_f: ti.template(),
                        prev_f: ti.template(), fprev_f: ti.template(), spring_f: ti.template(),
-                       work_f: ti.template(), delta, v_plate, dt, part: ti.template(), worker):
+                       work_f: ti.template(), delta, v_plate, dt, row):
         """Particle i against plate w (0 = bottom, normal from particle -z; 1 = top, +z)."""
         if delta > 0.0:
             nrm = ti.Vector([0.0, 0.0, 2.0 * w - 1.0])
@@ -636,16 +685,13 @@ class Kernels:
                 f_hys) * arm
             pool.normal_force_sum[i] += fn_abs
             pool.n_contacts[i] += 1
-            if ti.static(part):
-                self.plate_part[worker, w] -= force
-            else:
-                self.plate_force[w] -= force
+            self.plate_part[row, w] -= force
             if ti.static(self.track_energy):
-                self._ledger_add(L_DAMP_N, d_n)
-                self._ledger_add(L_DAMP_T, d_t)
-                self._ledger_add(L_FRICTION, fric)
-                self._ledger_add(L_HYST, hyst)
-                self._ledger_add(L_PLATE, force[2] * v_plate * dt)
+                self._ledger_add(L_DAMP_N, d_n, row)
+                self._ledger_add(L_DAMP_T, d_t, row)
+                self._ledger_add(L_FRICTION, fric, row)
+                self._ledger_add(L_HYST, hyst, row)
+                self._ledger_add(L_PLATE, force[2] * v_plate * dt, row)
         elif dmax_f[i] > 0.0 or prev_f[i] != 0.0:
             if ti.static(self.breakage):  # the contact ended: bank its share (spec 5.4)
                 if pool.event_open[i]:
@@ -655,7 +701,7 @@ class Kernels:
             dmax_f[i] = 0.0
             spring_f[i] = ti.Vector([0.0, 0.0, 0.0])
             if ti.static(self.track_energy):
-                self._ledger_add(L_HYST, -0.5 * fprev_f[i] * prev_f[i])
+                self._ledger_add(L_HYST, -0.5 * fprev_f[i] * prev_f[i], row)
             prev_f[i] = 0.0
             fprev_f[i] = 0.0
 
@@ -664,23 +710,27 @@ class Kernels:
                     dt: ti.f64, max_overlap_fraction: ti.f64, step: ti.i32):
         """Particle-particle contacts over the candidate pairs."""
         self._pairs_all(pool, table, grid, dt, max_overlap_fraction, step)
-        self._fold_ledger()
+        _, n_c = self._chunks(table.n_pairs[None], CHUNK_C)
+        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, True)
 
     @ti.func
     def _pairs_all(self, pool: ti.template(), table: ti.template(), grid: ti.template(), dt,
                    max_overlap_fraction, step):
+        s_c, _ = self._chunks(table.n_pairs[None], CHUNK_C)
         ti.loop_config(serialize=self.serial)
         for c in range(table.n_pairs[None]):
-            self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step)
+            self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step,
+                            MAX_CHUNKS + c // s_c)
 
     @ti.func
     def _pair_item(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, dt,
-                   max_overlap_fraction, step):
+                   max_overlap_fraction, step, row):
+        """Candidate pair c; its energy terms go to chunk row ``row``."""
         i = table.owner[c]
         j = table.partner[c]
         table.touch[c] = 0
         if pool.alive[i] and pool.alive[j]:
-            self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step)
+            self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step, row)
 
     @ti.kernel
     def gather_pair_forces(self, pool: ti.template(), table: ti.template(),
@@ -751,7 +801,7 @@ class Kernels:
 
     @ti.func
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,
-                  dt, max_overlap_fraction, step):
+                  dt, max_overlap_fraction, step, row):
         d = grid.minimum_image(pool.position[j] - pool.position[i])
         d2 = d.norm_sqr()
         ri = pool.radius[i]
@@ -773,16 +823,16 @@ class Kernels:
             if delta > 0.0 and dist > 0.0:
                 touching = True
                 self._contact(pool, table, c, i, j, d, dist, overlap, delta, ri, rj, dt,
-                              max_overlap_fraction, step)
+                              max_overlap_fraction, step, row)
         if not touching and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
             if ti.static(self.track_energy):  # last trapezoid down to separation
-                self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] *
-                              table.delta_prev[c])
+                self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] * table.delta_prev[c],
+                                 row)
             self._end_contact(pool, table, c, i, j)
 
     @ti.func
     def _contact(self, pool: ti.template(), table: ti.template(), c, i, j, d, dist, overlap,
-                 delta, ri, rj, dt, max_overlap_fraction, step):
+                 delta, ri, rj, dt, max_overlap_fraction, step, row):
         """Pair c = (i, j) touches (``delta`` > 0 beyond its reference overlap): the contact
         law, the history, this step's contribution and the overlap guard."""
         nrm = d / dist
@@ -817,10 +867,10 @@ class Kernels:
         if delta > max_overlap_fraction * ti.min(ri, rj):
             self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
         if ti.static(self.track_energy):
-            self._ledger_add(L_DAMP_N, d_n)
-            self._ledger_add(L_DAMP_T, d_t)
-            self._ledger_add(L_FRICTION, fric)
-            self._ledger_add(L_HYST, hyst)
+            self._ledger_add(L_DAMP_N, d_n, row)
+            self._ledger_add(L_DAMP_T, d_t, row)
+            self._ledger_add(L_FRICTION, fric, row)
+            self._ledger_add(L_HYST, hyst, row)
 
     @ti.func
     def _end_contact(self, pool: ti.template(), table: ti.template(), c, i, j):
