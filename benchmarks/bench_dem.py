@@ -106,6 +106,18 @@ def paper_bed(cfg, seed: int, cell_scale: float = 1.0, porosity: float = 0.33,
 
 
 # ----------------------------------------------------------------------------- ours
+def our_timestep(cfg, pos, rad, mat) -> float:
+    """Our time step for this bed [s] (what LIGGGHTS is given)."""
+    from calendaring.simulation import Simulation
+
+    sim = Simulation(cfg, capacity=len(rad))
+    try:
+        sim.add_particles(pos, rad, mat)
+        return sim.compute_timestep()
+    finally:
+        sim.destroy()
+
+
 def run_ours(cfg, pos, rad, mat, z_top, speed: float, steps: int, every: int = 100) -> dict:
     """Time ``steps`` steps of our engine from rest; top-plate force every ``every`` steps."""
     from calendaring.simulation import Simulation
@@ -323,19 +335,41 @@ def plot_versus(path: Path, ours: np.ndarray, peer: np.ndarray | None, area: flo
     plt.close(fig)
 
 
-def repeat_median(run, n: int, label: str) -> dict:
-    """Call ``run()`` (a dict with steps_per_s and particles) ``n`` times; the last result
-    with the median rate over the runs (the machine is noisy) and every run's rate."""
-    rates, out = [], None
-    for k in range(n):
-        out = run()
-        rates.append(out["steps_per_s"])
-        print(f"[versus] {label}, run {k + 1}/{n}: {out['steps_per_s']:.0f} steps/s "
-              f"({out['particle_steps_per_s']:.3g} particle-steps/s)", flush=True)
+def _once(run, k: int, n: int, label: str) -> dict:
+    out = run()
+    print(f"[versus] {label}, run {k + 1}/{n}: {out['steps_per_s']:.0f} steps/s "
+          f"({out['particle_steps_per_s']:.3g} particle-steps/s)", flush=True)
+    return out
+
+
+def _median_of(outs: list[dict]) -> dict:
+    """The last result with the median rate over the runs and every run's rate."""
+    out = dict(outs[-1])
+    rates = [o["steps_per_s"] for o in outs]
     out["steps_per_s_runs"] = rates
     out["steps_per_s"] = float(np.median(rates))
     out["particle_steps_per_s"] = out["steps_per_s"] * out["particles"]
     return out
+
+
+def repeat_median(run, n: int, label: str) -> dict:
+    """Call ``run()`` (a dict with steps_per_s and particles) ``n`` times; the last result
+    with the median rate over the runs (the machine is noisy) and every run's rate."""
+    return _median_of([_once(run, k, n, label) for k in range(n)])
+
+
+def interleaved(first, second, n: int, labels: tuple[str, str]) -> tuple[dict, dict]:
+    """``first()`` and ``second()`` in turn, ``n`` times each (a virtual machine's speed
+    drifts over minutes: side by side, each pair of runs meets the same conditions);
+    each code's median, plus the per-pair ratios in the first's ``ratio_runs``."""
+    a, b = [], []
+    for k in range(n):
+        a.append(_once(first, k, n, labels[0]))
+        b.append(_once(second, k, n, labels[1]))
+    out_a, out_b = _median_of(a), _median_of(b)
+    out_a["ratio_runs"] = [x["steps_per_s"] / y["steps_per_s"] for x, y in zip(a, b,
+                                                                            strict=True)]
+    return out_a, out_b
 
 
 def cmd_versus(args) -> dict:
@@ -367,9 +401,12 @@ def cmd_versus(args) -> dict:
     print(f"[versus] bed: {len(rad)} spheres ({int(np.sum(mat == 0))} AM, "
           f"{int(np.sum(mat == 1))} CB), plate at {z_top * 1e6:.2f} um, built in {prep:.0f} s",
           flush=True)
-    ours = repeat_median(lambda: run_ours(cfg, pos, rad, mat, z_top, args.speed, args.steps),
-                         args.repeat, f"calendaring on {args.threads} threads"
-                         if args.arch == "cpu" else f"calendaring on {args.arch}")
+    ours_label = (f"calendaring on {args.threads} threads" if args.arch == "cpu"
+                  else f"calendaring on {args.arch}")
+
+    def ours_once() -> dict:
+        return run_ours(cfg, pos, rad, mat, z_top, args.speed, args.steps)
+
     area = cfg.domain.cell_x * cfg.domain.cell_y
     binary = None if args.liggghts == "off" else (
         args.liggghts or shutil.which("liggghts") or shutil.which("lmp_serial"))
@@ -380,12 +417,15 @@ def cmd_versus(args) -> dict:
     if binary is None:
         print("[versus] LIGGGHTS off or not found (Debian package 'liggghts'): our figures "
               "alone")
+        ours = repeat_median(ours_once, args.repeat, ours_label)
         result["liggghts"] = None
     else:
+        dt = our_timestep(cfg, pos, rad, mat)
+
         def liggghts_once() -> dict:
             folder = Path(tempfile.mkdtemp(prefix="bench-liggghts-"))
             try:
-                liggghts_files(folder, cfg, pos, rad, mat, z_top, ours["dt_s"], args.speed,
+                liggghts_files(folder, cfg, pos, rad, mat, z_top, dt, args.speed,
                                args.steps, args.liggghts_skin)
                 return run_liggghts(folder, binary, args.np, args.steps)
             finally:
@@ -394,10 +434,12 @@ def cmd_versus(args) -> dict:
                 else:
                     shutil.rmtree(folder, ignore_errors=True)
 
-        peer = repeat_median(liggghts_once, args.repeat, f"LIGGGHTS on {args.np} MPI ranks")
+        ours, peer = interleaved(ours_once, liggghts_once, args.repeat,
+                                 (ours_label, f"LIGGGHTS on {args.np} MPI ranks"))
         result["liggghts"] = {k: v for k, v in peer.items() if k != "force"}
         result["liggghts"]["skin_m"] = args.liggghts_skin
         result["ratio_steps_per_s"] = ours["steps_per_s"] / peer["steps_per_s"]
+        result["ratio_median_of_pairs"] = float(np.median(ours["ratio_runs"]))
         result["agreement"] = compare_curves(ours["force"], peer["force"], area)
         if peer["particles"] != ours["particles"]:
             result["warning"] = (f"LIGGGHTS ended with {peer['particles']} atoms, ours with "

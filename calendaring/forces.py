@@ -65,8 +65,9 @@ RENDEZVOUS_SPINS = 1 << 24
 BARRIER_SPINS = 1 << 30
 # words of Kernels.sync (one cache line each): rendezvous, barrier, stop, status and the
 # work counters of the phases (chunks claimed)
-(S_ARRIVE, S_CLAIM, S_READY, S_COUNT, S_GEN, S_STOP, S_ABORT, S_ADVANCE, S_PAIRS, S_BONDS,
- S_GATHER) = range(11)
+S_ARRIVE, S_CLAIM, S_READY, S_COUNT, S_GEN, S_STOP, S_ABORT = range(7)
+# phases whose chunks are claimed (Kernels.claims[phase, worker])
+P_ADVANCE, P_PAIRS, P_BONDS, P_GATHER = range(4)
 # Work is cut into chunks of at least CHUNK_P particle slots or CHUNK_C pairs or bonds, at
 # most MAX_CHUNKS of each. Each chunk adds its plate forces and energy terms to its own row,
 # summed in chunk order at the end of the step: the same sums whoever ran the chunk.
@@ -165,6 +166,9 @@ class Kernels:
         fb.dense(ti.i, TRACE_LEN).place(self.plate_z, self.plate_v)
         self.sync = ti.field(ti.i32)
         fb.dense(ti.ij, (16, 16)).place(self.sync)  # word w is sync[w, 0]
+        self.claims = ti.field(ti.i32)  # chunks claimed from each worker's share
+        self.claim_rows = max(1, self.workers)
+        fb.dense(ti.ijk, (4, self.claim_rows, 16)).place(self.claims)
         self.n_tasks = ti.field(ti.i32)
         fb.place(self.n_tasks)
         self.outcome = ti.field(ti.i32)  # (steps done, flags, parents to replace)
@@ -387,6 +391,9 @@ class Kernels:
         """
         for q in ti.static(range(16)):
             self.sync[q, 0] = 0
+        for ph in ti.static(range(4)):
+            for v in ti.static(range(self.claim_rows)):
+                self.claims[ph, v, 0] = 0
         for q in ti.static(range(3)):
             self.outcome[q] = 0
         nw = ti.static(self.workers)
@@ -396,31 +403,40 @@ class Kernels:
             for _ in range(1):
                 self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0, dt,
                                    gravity, z_bottom, lx, ly, half_skin, step0, trace0,
-                                   max_overlap_fraction, interval)
+                                   max_overlap_fraction, interval, 0)
         else:
             for k in range(self.n_tasks[None]):
                 if k % GRAIN == 0:
                     if self._rendezvous():
                         self._burst_worker(pool, table, grid, bonds, breakage, n_max, kick0,
                                            dt, gravity, z_bottom, lx, ly, half_skin, step0,
-                                           trace0, max_overlap_fraction, interval)
+                                           trace0, max_overlap_fraction, interval,
+                                           k // GRAIN)
         return ti.Vector([self.outcome[0], self.outcome[1], self.outcome[2],
                           self.sync[S_ABORT, 0]])
 
     @ti.func
-    def _claim(self, word, n_chunks):
-        """The next chunk of the phase counted by ``sync[word]``, or -1 when none is left."""
-        k = ti.atomic_add(self.sync[word, 0], 1)
-        if k >= n_chunks:
-            k = -1
+    def _claim(self, phase, n_chunks, wk):
+        """The next chunk of ``phase`` for worker ``wk``, or -1 when none is left: first
+        from the worker's own share of the chunks (the same particles and pairs every step,
+        so their data stay in its core's cache), then from the others' shares."""
+        nw = ti.static(self.workers)
+        k = -1
+        for o in range(nw):
+            v = (wk + o) % nw
+            lo = v * n_chunks // nw
+            j = ti.atomic_add(self.claims[phase, v, 0], 1)
+            if lo + j < (v + 1) * n_chunks // nw:
+                k = lo + j
+                break
         return k
 
     @ti.func
     def _burst_worker(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
                       bonds: ti.template(), breakage: ti.template(), n_max, kick0, dt, gravity,
                       z_bottom, lx, ly, half_skin, step0, trace0, max_overlap_fraction,
-                      interval):
-        """One worker's part of :meth:`burst`."""
+                      interval, wk):
+        """Worker ``wk``'s part of :meth:`burst`."""
         n_slots = pool.n_slots[None]
         n_pairs = table.n_pairs[None]
         s_p, n_p = self._chunks(n_slots, CHUNK_P)
@@ -439,7 +455,7 @@ class Kernels:
             if ti.static(breakage != None):  # noqa: E711
                 breakage.n_break[None] = 0  # every worker: before the first barrier
             while True:
-                k = self._claim(S_ADVANCE, n_p)
+                k = self._claim(P_ADVANCE, n_p, wk)
                 if k < 0:
                     break
                 for i in range(k * s_p, ti.min(n_slots, (k + 1) * s_p)):
@@ -448,7 +464,7 @@ class Kernels:
                                           v_top, lx, ly, half_skin, step, k)
             self._barrier()
             while True:
-                k = self._claim(S_PAIRS, n_c)
+                k = self._claim(P_PAIRS, n_c, wk)
                 if k < 0:
                     break
                 for c in range(k * s_c, ti.min(n_pairs, (k + 1) * s_c)):
@@ -456,14 +472,14 @@ class Kernels:
                                     MAX_CHUNKS + k)
             if ti.static(bonds != None):  # noqa: E711
                 while True:
-                    k = self._claim(S_BONDS, n_b)
+                    k = self._claim(P_BONDS, n_b, wk)
                     if k < 0:
                         break
                     for b in range(k * s_b, ti.min(n_bonds, (k + 1) * s_b)):
                         bonds._bond_item(pool, b, dt, lx, ly, step + 1, False)
             self._barrier()
             while True:
-                k = self._claim(S_GATHER, n_p)
+                k = self._claim(P_GATHER, n_p, wk)
                 if k < 0:
                     break
                 for i in range(k * s_p, ti.min(n_slots, (k + 1) * s_p)):
@@ -509,8 +525,9 @@ class Kernels:
         self.outcome[0] = done
         self.outcome[1] = flags
         self.outcome[2] = n_break
-        for w in ti.static((S_ADVANCE, S_PAIRS, S_BONDS, S_GATHER)):
-            self.sync[w, 0] = 0
+        for ph in ti.static(range(4)):
+            for v in ti.static(range(self.claim_rows)):
+                self.claims[ph, v, 0] = 0
         self.sync[S_STOP, 0] = stop
 
     @ti.func
