@@ -358,13 +358,17 @@ def repeat_median(run, n: int, label: str) -> dict:
     return _median_of([_once(run, k, n, label) for k in range(n)])
 
 
-def interleaved(first, second, n: int, labels: tuple[str, str]) -> tuple[dict, dict]:
+def interleaved(first, second, n: int, labels: tuple[str, str],
+                pause: float = 0.0) -> tuple[dict, dict]:
     """``first()`` and ``second()`` in turn, ``n`` times each (a virtual machine's speed
-    drifts over minutes: side by side, each pair of runs meets the same conditions);
-    each code's median, plus the per-pair ratios in the first's ``ratio_runs``."""
+    drifts over minutes: side by side, each pair of runs meets the same conditions), with
+    ``pause`` seconds of idle before each run; each code's median, plus the per-pair
+    ratios in the first's ``ratio_runs``."""
     a, b = [], []
     for k in range(n):
+        time.sleep(pause)
         a.append(_once(first, k, n, labels[0]))
+        time.sleep(pause)
         b.append(_once(second, k, n, labels[1]))
     out_a, out_b = _median_of(a), _median_of(b)
     out_a["ratio_runs"] = [x["steps_per_s"] / y["steps_per_s"] for x, y in zip(a, b,
@@ -435,7 +439,7 @@ def cmd_versus(args) -> dict:
                     shutil.rmtree(folder, ignore_errors=True)
 
         ours, peer = interleaved(ours_once, liggghts_once, args.repeat,
-                                 (ours_label, f"LIGGGHTS on {args.np} MPI ranks"))
+                                 (ours_label, f"LIGGGHTS on {args.np} MPI ranks"), args.pause)
         result["liggghts"] = {k: v for k, v in peer.items() if k != "force"}
         result["liggghts"]["skin_m"] = args.liggghts_skin
         result["ratio_steps_per_s"] = ours["steps_per_s"] / peer["steps_per_s"]
@@ -685,6 +689,9 @@ def main(argv=None) -> int:
     v.add_argument("--threads", type=int, default=2)
     v.add_argument("--arch", default="cpu", choices=["cpu", "cuda"],
                    help="our backend (LIGGGHTS runs on the CPU)")
+    v.add_argument("--pause", type=float, default=0.0,
+                   help="idle seconds before each run (lets the machine settle between "
+                        "the two codes)")
     v.add_argument("--repeat", type=int, default=3,
                    help="runs of each code (medians reported: the machine is noisy)")
     v.add_argument("--np", type=int, default=2, help="LIGGGHTS MPI ranks")
