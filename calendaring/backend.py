@@ -128,7 +128,7 @@ def burst_workers(threads: int) -> int:
     info = current_backend()
     if info is not None and info.arch != "cpu":
         return 0
-    return max(1, int(threads) or (os.cpu_count() or 1))
+    return max(1, cpu_pool_threads(int(threads)))
 
 
 def current_backend() -> BackendInfo | None:

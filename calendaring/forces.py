@@ -1,13 +1,14 @@
 """Contact model tables and the per-step kernels.
 
-One step is two parallel loops (the CPU backend pays ~60 us per parallel loop, so they are
-fused as far as the physics allows):
+One step (:meth:`Kernels.step`) is three phases:
 
-1. :meth:`Kernels.advance` over particles: kick with the previous forces (leapfrog form of
-   velocity Verlet), drift, periodic wrap, guards, then reset the accumulators to gravity
-   and add the particle-plate contacts at the new positions.
-2. :meth:`Kernels.pair_forces` over candidate pairs: the same contact law, accumulated into
-   both particles with atomic adds (bit-reproducible on one thread, not across threads).
+1. over particles (:meth:`Kernels.advance`): kick with the previous forces (leapfrog form
+   of velocity Verlet), drift, periodic wrap, guards, then reset the accumulators to
+   gravity and add the particle-plate contacts at the new positions;
+2. over candidate pairs (:meth:`Kernels.pair_forces`) and bonds: the contact law, each
+   pair's or bond's loads written to its own slot;
+3. over particles: those loads summed per particle in a fixed order (no atomic adds on
+   particle loads), then the breakage test.
 
 Velocities held between steps are half-step velocities v_{n-1/2}; observables use the
 synchronised v_n = v_{n-1/2} + dt/2 a_n.
@@ -487,16 +488,14 @@ class Kernels:
                         self._gather_one(pool, table, bonds, i)
                         if ti.static(breakage != None):  # noqa: E711
                             breakage._event_item(pool, i)
-            nw = ti.static(self.workers)
-            if ti.static(nw == 1):
+            if ti.static(self.workers == 1):
                 self._end_step(pool, breakage, s, n_max, step0, trace0, interval, n_p, n_c)
             else:
-                gen = ti.atomic_add(self.sync[S_GEN, 0], 0)
-                if ti.atomic_add(self.sync[S_COUNT, 0], 1) == nw - 1:  # the last to arrive
+                gen, last = self._arrive()
+                if last:  # the others wait while the last to arrive closes the step
                     self._end_step(pool, breakage, s, n_max, step0, trace0, interval, n_p,
                                    n_c)
-                    ti.atomic_sub(self.sync[S_COUNT, 0], nw)
-                    ti.atomic_add(self.sync[S_GEN, 0], 1)
+                    self._release()
                 else:
                     self._wait(gen)
             if ti.atomic_add(self.sync[S_STOP, 0], 0) != 0 or ti.atomic_add(
@@ -552,16 +551,27 @@ class Kernels:
 
     @ti.func
     def _barrier(self):
-        """All workers of a burst reach this point before any goes on (sense by
-        generation: the last to arrive resets the count and opens the next generation)."""
-        nw = ti.static(self.workers)
-        if ti.static(nw > 1):
-            gen = ti.atomic_add(self.sync[S_GEN, 0], 0)
-            if ti.atomic_add(self.sync[S_COUNT, 0], 1) == nw - 1:
-                ti.atomic_sub(self.sync[S_COUNT, 0], nw)
-                ti.atomic_add(self.sync[S_GEN, 0], 1)
+        """All workers of a burst reach this point before any goes on."""
+        if ti.static(self.workers > 1):
+            gen, last = self._arrive()
+            if last:
+                self._release()
             else:
                 self._wait(gen)
+
+    @ti.func
+    def _arrive(self):
+        """A worker reaches a barrier: (the barrier's generation, whether it is the last
+        to arrive). The last one calls :meth:`_release`, the others :meth:`_wait`."""
+        gen = ti.atomic_add(self.sync[S_GEN, 0], 0)
+        last = ti.atomic_add(self.sync[S_COUNT, 0], 1) == ti.static(self.workers) - 1
+        return gen, last
+
+    @ti.func
+    def _release(self):
+        """Reset the count and open the next generation: the waiting workers go on."""
+        ti.atomic_sub(self.sync[S_COUNT, 0], ti.static(self.workers))
+        ti.atomic_add(self.sync[S_GEN, 0], 1)
 
     @ti.func
     def _wait(self, gen):
