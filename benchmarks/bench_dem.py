@@ -124,7 +124,7 @@ def run_ours(cfg, pos, rad, mat, z_top, speed: float, steps: int, every: int = 1
 
     sim = Simulation(cfg, capacity=len(rad))
     try:
-        sim.add_particles(pos, rad, mat)
+        sim.add_particles(pos, rad, mat, order="space")  # as calendering runs store a bed
         sim.set_top_plate(z=z_top, velocity=-speed)
         t0 = time.perf_counter()
         sim.prime()  # compile or load the kernels, first neighbour list and forces
@@ -499,7 +499,7 @@ def measure_full(cfg, pos, rad, mat, z_top, steps: int, speed: float) -> dict:
     cap = pool_capacity(cfg, rad, mat)
     sim = Simulation(cfg, capacity=cap)
     try:
-        sim.add_particles(pos, rad, mat)
+        sim.add_particles(pos, rad, mat, order="space")
         sim.set_top_plate(z=z_top, velocity=-speed)
         n_bonds = sim.create_bonds()
         sim.start_breakage()

@@ -30,6 +30,12 @@ COLUMNS = (
     "adhesion_stiffness",  # k_adh for adhesion_mode direct_kadh [N m^-chi]
     "stiffness_partition",  # e_i = k_j / (k_i + k_j): share of pair work taken by body i
     "plastic_factor",  # lambda_p^(1/n): delta_p = plastic_factor * delta_max [-]
+    # n = 1.5 with damping_mode tangent_sqrt56 (the default), both damping coefficients
+    # are these factors times sqrt(m* sqrt(R* delta)): beta_n = 2 sqrt(5/6) beta_hat
+    # sqrt(m* 1.5 k1 delta^0.5) with k1 = (4/3) E* sqrt(R*), and beta_t = 2 beta_hat
+    # sqrt(m* k_t) with k_t = xi_t 8 G* sqrt(R* delta) (spec 2.4, 3.1)
+    "normal_damping_factor",  # 2 sqrt(5/6) beta_hat sqrt(2 E*) [kg^0.5 m^-0.5 s^-1]
+    "tangential_damping_factor",  # 2 beta_hat sqrt(8 xi_t G*) [kg^0.5 m^-0.5 s^-1]
 )
 COL = {name: i for i, name in enumerate(COLUMNS)}
 
@@ -59,20 +65,25 @@ def plane_strain_modulus(m: MaterialConfig) -> float:
     return m.youngs_modulus / (1 - m.poisson_ratio**2)
 
 
-def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig, n: float) -> list[float]:
+def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig, n: float,
+         xi_t: float) -> list[float]:
     ka, kb = plane_strain_modulus(a), plane_strain_modulus(b)
+    e_star, g_star = reduced_modulus(a, b), reduced_shear_modulus(a, b)
+    beta_hat = damping_ratio(p.restitution)
     return [
-        reduced_modulus(a, b),
-        reduced_shear_modulus(a, b),
+        e_star,
+        g_star,
         p.plasticity_ratio,
         p.surface_energy,
-        damping_ratio(p.restitution),
+        beta_hat,
         p.friction,
         p.rolling_friction,
         p.pull_off_force,
         p.adhesion_stiffness,
         kb / (ka + kb),
         p.plasticity_ratio ** (1.0 / n),
+        2.0 * math.sqrt(5.0 / 6.0) * beta_hat * math.sqrt(2.0 * e_star),
+        2.0 * beta_hat * math.sqrt(8.0 * xi_t * g_star),
     ]
 
 
@@ -84,7 +95,8 @@ def pair_table(cfg: SimConfig) -> np.ndarray:
     for i, a in enumerate(names):
         for j, b in enumerate(names):
             out[i, j] = _row(cfg.materials[a], cfg.materials[b], cfg.pair(a, b),
-                             cfg.contact.loading_exponent)
+                             cfg.contact.loading_exponent,
+                             cfg.contact.tangential_stiffness_ratio)
     return out
 
 
@@ -95,5 +107,6 @@ def plate_table(cfg: SimConfig) -> np.ndarray:
     for i, a in enumerate(names):
         p = cfg.contact.plate_pairs[a]
         for w, plate in enumerate((cfg.plates.bottom, cfg.plates.top)):
-            out[i, w] = _row(cfg.materials[a], plate, p, cfg.contact.loading_exponent)
+            out[i, w] = _row(cfg.materials[a], plate, p, cfg.contact.loading_exponent,
+                             cfg.contact.tangential_stiffness_ratio)
     return out

@@ -58,36 +58,42 @@ class ContactTable:
         self.old_partner_id = ti.field(ti.i64)
         for f in (self.owner, self.partner, self.partner_id, self.old_partner_id):
             fb.dense(ti.i, self.capacity).place(f)
-        for name in PAIR_F64:
-            f = ti.field(ti.f64)
-            fb.dense(ti.i, self.capacity).place(f)
-            setattr(self, name, f)
+        for name in (*PAIR_F64, *PAIR_OUT_F64):
+            setattr(self, name, ti.field(ti.f64))
+        for name in PAIR_I32:
+            setattr(self, name, ti.field(ti.i32))
+        self.spring = ti.Vector.field(3, ti.f64)
+        # this step's contribution of each pair (see the module docstring)
+        self.touch = ti.field(ti.i32)
+        self.pair_force = ti.Vector.field(3, ti.f64)  # force on the owner [N]
+        self.pair_nft = ti.Vector.field(3, ti.f64)  # normal x tangential force [N]
+        # The force kernel reads and writes a pair's history and this step's contribution
+        # together, and the gather reads a particle's pairs in random order: each group is
+        # one record per pair (array of structures, 8-byte members first), so one pair
+        # touches two or three cache lines instead of one per field.
+        fb.dense(ti.i, self.capacity).place(
+            self.spring, *(getattr(self, n) for n in HISTORY_F64),
+            *(getattr(self, n) for n in PAIR_I32))
+        fb.dense(ti.i, self.capacity).place(
+            self.pair_force, self.pair_nft, self.normal_force,
+            *(getattr(self, n) for n in PAIR_OUT_F64))
+        fb.dense(ti.i, self.capacity).place(self.touch)  # the gather reads it for every pair
         for name in HISTORY_F64:
             f = ti.field(ti.f64)
             fb.dense(ti.i, self.capacity).place(f)
             setattr(self, "old_" + name, f)
         for name in PAIR_I32:
-            for prefix in ("", "old_"):
-                f = ti.field(ti.i32)
-                fb.dense(ti.i, self.capacity).place(f)
-                setattr(self, prefix + name, f)
-        # this step's contribution of each pair (see the module docstring)
-        self.touch = ti.field(ti.i32)
-        self.in_pair = ti.field(ti.i32)
-        fb.dense(ti.i, self.capacity).place(self.touch, self.in_pair)
-        for name in PAIR_OUT_F64:
-            f = ti.field(ti.f64)
+            f = ti.field(ti.i32)
             fb.dense(ti.i, self.capacity).place(f)
-            setattr(self, name, f)
-        self.pair_force = ti.Vector.field(3, ti.f64)  # force on the owner [N]
-        self.pair_nft = ti.Vector.field(3, ti.f64)  # normal x tangential force [N]
-        fb.dense(ti.i, self.capacity).place(self.pair_force, self.pair_nft)
+            setattr(self, "old_" + name, f)
+        self.in_pair = ti.field(ti.i32)
+        self.near = ti.field(ti.i32)  # scratch: the pairs within reach, by chunk (CPU)
+        fb.dense(ti.i, self.capacity).place(self.in_pair)
+        fb.dense(ti.i, self.capacity).place(self.near)
         names = (*HISTORY_F64, *PAIR_I32)  # f64 first
         self._history = [getattr(self, n) for n in names]
         self._history_old = [getattr(self, "old_" + n) for n in names]
-        self.spring = ti.Vector.field(3, ti.f64)
         self.old_spring = ti.Vector.field(3, ti.f64)
-        fb.dense(ti.i, self.capacity).place(self.spring)
         fb.dense(ti.i, self.capacity).place(self.old_spring)
         self.seg_start = ti.field(ti.i32)
         self.seg_count = ti.field(ti.i32)

@@ -258,9 +258,22 @@ class Kernels:
         """
         n = ti.static(self.n)
         chi = ti.static(self.chi)
+        # n = 1.5 with the default damping: sqrt(R*) and sqrt(delta) taken once, and both
+        # damping coefficients from one root, sqrt(m* sqrt(R* delta)) (the factors are
+        # table columns): four square roots fewer per contact than the general forms
+        hertz = ti.static(n == 1.5)
+        fused = ti.static(n == 1.5 and self.damping_mode == DAMPING_TANGENT_SQRT56)
         e_star = tab[a, b, COL["e_star"]]
         beta_hat = tab[a, b, COL["beta_hat"]]
-        k1 = eepa_loading_stiffness(e_star, r_star, n)
+        k1 = 0.0
+        sr = 0.0
+        sd = 0.0
+        if ti.static(hertz):
+            sr = ti.sqrt(r_star)
+            sd = ti.sqrt(delta)
+            k1 = (4.0 / 3.0) * e_star * sr
+        else:
+            k1 = eepa_loading_stiffness(e_star, r_star, n)
         dmax = ti.max(delta_max, delta)
         # compiled without the terms that every contact of the model has at zero (no
         # adhesion: f0 = k_adh = 0; no plasticity: k2 = k1, delta_p = 0): the same numbers,
@@ -284,19 +297,30 @@ class Kernels:
         f_hys = 0.0
         if ti.static(self.adhesive or self.plastic):
             f_hys = eepa_hysteretic_force(delta, delta_p, k1, k2, k_adh, f0, n, chi)
+        elif ti.static(hertz):
+            f_hys = k1 * (delta * sd)
         else:
             f_hys = k1 * power_n(delta, n)
+        beta_n = 0.0
+        k_t = 0.0
+        beta_t = 0.0
+        if ti.static(fused):
+            root = ti.sqrt(m_star * sr * sd)
+            beta_n = tab[a, b, COL["normal_damping_factor"]] * root
+            k_t = ti.static(8.0 * self.xi_t) * tab[a, b, COL["g_star"]] * sr * sd
+            beta_t = tab[a, b, COL["tangential_damping_factor"]] * root
+        else:
+            beta_n = eepa_damping_coefficient(m_star, k1, delta, beta_hat, n,
+                                              ti.static(self.damping_mode))
+            k_t = tangential_stiffness(tab[a, b, COL["g_star"]], r_star, delta, k1,
+                                       ti.static(self.xi_t), n)
+            beta_t = 2.0 * beta_hat * ti.sqrt(m_star * k_t)
         delta_dot = v_rel.dot(nrm)
-        beta_n = eepa_damping_coefficient(m_star, k1, delta, beta_hat, n,
-                                          ti.static(self.damping_mode))
         f_nd = beta_n * delta_dot
         f_n = f_hys + f_nd
         v_t = v_rel - delta_dot * nrm
-        k_t = tangential_stiffness(tab[a, b, COL["g_star"]], r_star, delta, k1,
-                                   ti.static(self.xi_t), n)
         s_old = rotate_spring(spring, nrm)
         s = s_old - k_t * v_t * dt
-        beta_t = 2.0 * beta_hat * ti.sqrt(m_star * k_t)
         f_t = s - beta_t * v_t
         limit = 0.0
         if ti.static(self.adhesive):
@@ -305,15 +329,19 @@ class Kernels:
             limit = tab[a, b, COL["friction"]] * ti.abs(f_hys)
         friction_loss = 0.0
         damp_t = beta_t * v_t.norm_sqr() * dt
-        ft_mag = f_t.norm()
-        if ft_mag > limit:
-            t_hat = f_t / ft_mag if ft_mag > 0.0 else ti.Vector([0.0, 0.0, 0.0])
-            s_new = limit * t_hat
-            if k_t > 0.0:
+        ft2 = f_t.norm_sqr()
+        # Sliding (the spring sits on the Coulomb limit): about half the contacts of a
+        # compacting bed slide, at random, so the root and the quotient are taken for
+        # every contact and the test only selects values (a branch around them was
+        # mispredicted often enough to cost ~10 % of the pair loop)
+        s_new = ti.sqrt(limit * limit / ti.max(ft2, 1e-300)) * f_t
+        slide = ft2 > limit * limit
+        if ti.static(self.track_energy):
+            if slide and k_t > 0.0:
                 friction_loss = (s.norm_sqr() - s_new.norm_sqr()) / (2.0 * k_t)
-            s = s_new
-            f_t = s
-            damp_t = 0.0
+        s = ti.select(slide, s_new, s)
+        f_t = ti.select(slide, s_new, f_t)
+        damp_t = ti.select(slide, 0.0, damp_t)
         force_i = -f_n * nrm + f_t
         hyst = 0.5 * (fhys_prev + f_hys) * (delta - delta_prev)
         work = 0.0
@@ -468,9 +496,8 @@ class Kernels:
                 k = self._claim(P_PAIRS, n_c, wk)
                 if k < 0:
                     break
-                for c in range(k * s_c, ti.min(n_pairs, (k + 1) * s_c)):
-                    self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step + 1,
-                                    MAX_CHUNKS + k)
+                self._pair_chunk(pool, table, grid, k * s_c, ti.min(n_pairs, (k + 1) * s_c),
+                                 dt, max_overlap_fraction, step + 1, MAX_CHUNKS + k)
             if ti.static(bonds != None):  # noqa: E711
                 while True:
                     k = self._claim(P_BONDS, n_b, wk)
@@ -743,11 +770,44 @@ class Kernels:
     @ti.func
     def _pairs_all(self, pool: ti.template(), table: ti.template(), grid: ti.template(), dt,
                    max_overlap_fraction, step):
-        s_c, _ = self._chunks(table.n_pairs[None], CHUNK_C)
-        ti.loop_config(serialize=self.serial)
-        for c in range(table.n_pairs[None]):
-            self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step,
-                            MAX_CHUNKS + c // s_c)
+        s_c, n_c = self._chunks(table.n_pairs[None], CHUNK_C)
+        if ti.static(self.workers > 0):  # CPU: by chunk, as the multi-step launch does
+            ti.loop_config(serialize=self.serial)
+            for k in range(n_c):
+                self._pair_chunk(pool, table, grid, k * s_c,
+                                 ti.min(table.n_pairs[None], (k + 1) * s_c), dt,
+                                 max_overlap_fraction, step, MAX_CHUNKS + k)
+        else:  # CUDA: a thread per pair
+            for c in range(table.n_pairs[None]):
+                self._pair_item(pool, table, grid, c, dt, max_overlap_fraction, step,
+                                MAX_CHUNKS + c // s_c)
+
+    @ti.func
+    def _pair_chunk(self, pool: ti.template(), table: ti.template(), grid: ti.template(), lo,
+                    hi, dt, max_overlap_fraction, step, row):
+        """Candidate pairs ``lo:hi`` on a CPU core, in two passes: the distances, listing
+        the pairs within reach in ``table.near[lo:]`` (about half of them, in no
+        predictable order: the list is written without a branch) and ending the contacts of
+        those out of reach; then the contacts of the listed pairs (:meth:`_pair_one`)."""
+        m = lo
+        for c in range(lo, hi):
+            i = table.owner[c]
+            j = table.partner[c]
+            table.touch[c] = 0
+            near = 0
+            if pool.alive[i] and pool.alive[j]:
+                d = grid.minimum_image(pool.position[j] - pool.position[i])
+                reach = pool.radius[i] + pool.radius[j]
+                near = ti.select((table.delta_ref[c] > 0.0) | (d.norm_sqr() < reach * reach),
+                                 1, 0)
+                if near == 0 and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
+                    self._end_touch(pool, table, c, i, j, row)
+            table.near[m] = c
+            m += near
+        for k in range(lo, m):
+            c = table.near[k]
+            self._pair_one(pool, table, grid, c, table.owner[c], table.partner[c], dt,
+                           max_overlap_fraction, step, row)
 
     @ti.func
     def _pair_item(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, dt,
@@ -852,10 +912,15 @@ class Kernels:
                 self._contact(pool, table, c, i, j, d, dist, overlap, delta, ri, rj, dt,
                               max_overlap_fraction, step, row)
         if not touching and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
-            if ti.static(self.track_energy):  # last trapezoid down to separation
-                self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] * table.delta_prev[c],
-                                 row)
-            self._end_contact(pool, table, c, i, j)
+            self._end_touch(pool, table, c, i, j, row)
+
+    @ti.func
+    def _end_touch(self, pool: ti.template(), table: ti.template(), c, i, j, row):
+        """Pair c separated this step: the last trapezoid of the hysteretic work down to
+        separation (chunk row ``row``), then :meth:`_end_contact`."""
+        if ti.static(self.track_energy):
+            self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] * table.delta_prev[c], row)
+        self._end_contact(pool, table, c, i, j)
 
     @ti.func
     def _contact(self, pool: ti.template(), table: ti.template(), c, i, j, d, dist, overlap,

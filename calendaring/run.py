@@ -220,7 +220,7 @@ class CalenderRun:
         vel = np.zeros((len(rad), 3))
         if first == "settle":
             vel[:, 2] = -cfg.build.settle_velocity
-        sim.add_particles(pos, rad, mat, velocity=vel)
+        sim.add_particles(pos, rad, mat, velocity=vel, order="space")
         rho = np.array([cfg.materials[n].density for n in names])[mat]
         sim.prime()  # dt = numerics.timestep_fraction x the smallest Rayleigh time
         dt_run = sim.dt

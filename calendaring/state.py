@@ -1,4 +1,5 @@
-"""Particle pool: structure-of-arrays Taichi fields with a fixed capacity.
+"""Particle pool: Taichi fields with a fixed capacity (one array per field, except the
+fields the pair loop reads of both particles, kept together per slot: ``PAIR_READ``).
 
 Slots ``[0, n_slots)`` have been used; a slot holds a live particle while ``alive == 1``.
 Slots are never reused and ids are never reused: breakage kills a parent (``alive = 0``)
@@ -6,7 +7,9 @@ and appends its fragments at the tail, so contact owners (the lower slot of a pa
 valid between neighbour-list rebuilds.
 
 Insertion:
-- host: :meth:`ParticlePool.add` (arrays in, ids out);
+- host: :meth:`ParticlePool.add` (arrays in, ids out; ``order`` sets which input goes to
+  which slot: :meth:`calendaring.simulation.Simulation.add_particles` stores a bed along a
+  space-filling curve, so that neighbours sit in nearby slots);
 - device: :func:`allocate_slot` inside a kernel (atomic tail counter); a kernel that runs
   past the capacity sets ``overflow`` and the host raises :class:`SimulationError`.
 
@@ -57,6 +60,8 @@ SCALAR_FIELDS = {
     "birth_step": ti.i32,  # step at which a fragment was created (-1 for originals)
 }
 
+PAIR_READ = ("position", "velocity", "angular_velocity", "radius", "mass", "material", "alive")
+
 
 @ti.data_oriented
 class ParticlePool:
@@ -72,13 +77,15 @@ class ParticlePool:
         self.capacity = int(capacity)
         fb = ti.FieldsBuilder()
         for name, dtype in SCALAR_FIELDS.items():
-            f = ti.field(dtype)
-            fb.dense(ti.i, self.capacity).place(f)
-            setattr(self, name, f)
+            setattr(self, name, ti.field(dtype))
         for name in VEC_FIELDS:
-            f = ti.Vector.field(3, ti.f64)
-            fb.dense(ti.i, self.capacity).place(f)
-            setattr(self, name, f)
+            setattr(self, name, ti.Vector.field(3, ti.f64))
+        # what the pair loop reads of both particles of a contact, in random order: one
+        # record per slot (8-byte members first); the rest one array per field
+        for name in (*VEC_FIELDS, *SCALAR_FIELDS):
+            if name not in PAIR_READ:
+                fb.dense(ti.i, self.capacity).place(getattr(self, name))
+        fb.dense(ti.i, self.capacity).place(*(getattr(self, n) for n in PAIR_READ))
         self.n_slots = ti.field(ti.i32)  # high-water mark of used slots
         self.next_id = ti.field(ti.i64)  # next id to hand out
         self.overflow = ti.field(ti.i32)  # slots requested beyond capacity (device)
@@ -103,8 +110,9 @@ class ParticlePool:
         return int(self.alive.to_numpy()[:n].sum())
 
     def add(self, position, radius, material, mass, inertia_factor=0.4, velocity=None,
-            angular_velocity=None, parent_id=None) -> np.ndarray:
-        """Append particles at the tail; returns their new ids.
+            angular_velocity=None, parent_id=None, order=None) -> np.ndarray:
+        """Append particles at the tail; returns their new ids (in input order: input k gets
+        id ``first + k``).
 
         Args:
             position: (k, 3) centres [m].
@@ -114,6 +122,8 @@ class ParticlePool:
             inertia_factor: I = factor m R^2 (2/5 for a solid sphere).
             velocity, angular_velocity: (k, 3) initial values (default 0).
             parent_id: (k,) lineage (default -1).
+            order: (k,) permutation: slot ``tail + s`` takes input ``order[s]`` (default:
+                input order).
         """
         position = np.ascontiguousarray(position, dtype=np.float64).reshape(-1, 3)
         k = position.shape[0]
@@ -136,10 +146,16 @@ class ParticlePool:
         if k == 0:
             return np.zeros(0, np.int64)
         first_id = int(self.next_id[None])
+        ids = np.arange(first_id, first_id + k, dtype=np.int64)
         inv_inertia = 1.0 / (inertia_factor * mass * radius**2)
-        self._insert(position, np.ascontiguousarray(vel), np.ascontiguousarray(om), radius,
-                     mass, inv_inertia, material, parent, start, first_id)
-        return np.arange(first_id, first_id + k, dtype=np.int64)
+        perm = np.arange(k) if order is None else np.asarray(order, np.int64).reshape(-1)
+        if perm.shape != (k,) or not np.array_equal(np.sort(perm), np.arange(k)):
+            raise ValueError(f"order must be a permutation of 0..{k - 1}")
+        cols = [np.ascontiguousarray(a[perm]) for a in (position, vel, om, radius, mass,
+                                                        inv_inertia, material, parent, ids)]
+        self._insert(*cols, start)
+        self.next_id[None] = first_id + k
+        return ids
 
     def remove(self, ids) -> None:
         """Mark the particles with these ids dead (host-side deletion)."""
@@ -173,14 +189,14 @@ class ParticlePool:
     @ti.kernel
     def _insert(self, pos: ti.types.ndarray(), vel: ti.types.ndarray(), om: ti.types.ndarray(),
                 rad: ti.types.ndarray(), mass: ti.types.ndarray(), inv_i: ti.types.ndarray(),
-                mat: ti.types.ndarray(), parent: ti.types.ndarray(), start: ti.i32,
-                first_id: ti.i64):
+                mat: ti.types.ndarray(), parent: ti.types.ndarray(), ids: ti.types.ndarray(),
+                start: ti.i32):
         for k in range(rad.shape[0]):
             i = start + k
             self.alive[i] = 1
-            self.pid[i] = first_id + k
+            self.pid[i] = ids[k]
             self.parent_id[i] = parent[k]
-            self.root_id[i] = first_id + k
+            self.root_id[i] = ids[k]
             self.material[i] = mat[k]
             self.radius[i] = rad[k]
             self.mass[i] = mass[k]
@@ -193,7 +209,6 @@ class ParticlePool:
             self.clear_contact_state(i)
             self.birth_step[i] = -1
         self.n_slots[None] = start + rad.shape[0]
-        self.next_id[None] = first_id + rad.shape[0]
 
     @ti.func
     def clear_contact_state(self, i):

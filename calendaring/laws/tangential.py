@@ -29,11 +29,10 @@ def tangential_stiffness(g_star, r_star, delta, k1, ratio, n: ti.template()):
 @ti.func
 def rotate_spring(spring, normal):
     """Project the spring onto the plane normal to ``normal`` keeping its magnitude."""
-    mag = spring.norm()
     s = spring - spring.dot(normal) * normal
-    smag = s.norm()
-    if smag > 0.0:
-        s *= mag / smag
+    smag2 = s.norm_sqr()
+    if smag2 > 0.0:
+        s *= ti.sqrt(spring.norm_sqr() / smag2)
     return s
 
 

@@ -10,8 +10,12 @@ from tests.engine.helpers import random_gas
 
 
 def _pairs(sim):
+    """Candidate pairs as (smaller id, larger id): ids are the input indices, slots are
+    not (the pool stores a bed along a space-filling curve)."""
     h = sim.table.history_arrays()
-    return {(int(a), int(b)) for a, b in zip(h["owner"], h["partner"], strict=True)}
+    pid = sim.pool.pid.to_numpy()
+    return {tuple(sorted((int(pid[a]), int(pid[b]))))
+            for a, b in zip(h["owner"], h["partner"], strict=True)}
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
