@@ -86,6 +86,11 @@ def init_taichi(
         offline_cache_file_path=cache,
         debug=debug,
         log_level=ti.WARN,
+        # IEEE arithmetic: with fast math LLVM may reorder sums differently in two kernels
+        # that inline the same function (the one-launch-per-step and multi-step paths
+        # then drift apart in the last bits) and may drop NaN tests (the guards); it
+        # measured no faster here
+        fast_math=False,
     )
     if arch != "cuda":  # the CPU's thread pool ("auto" may fall back to the CPU)
         kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)

@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from calendaring.config import BondsConfig
 from calendaring.laws.tangential import rotate_spring
+from calendaring.neighbours import minimum_image
 
 INTACT, FAILED_NORMAL, FAILED_SHEAR, REMOVED = 0, 1, 2, 3
 STATE_NAMES = {INTACT: "intact", FAILED_NORMAL: "failed_normal", FAILED_SHEAR: "failed_shear",
@@ -108,16 +109,19 @@ class BondTable:
         self.m_n = ti.field(ti.f64)  # twisting moment on A along n [N m]
         self.f_t = ti.Vector.field(3, ti.f64)  # shear force on A [N]
         self.m_t = ti.Vector.field(3, ti.f64)  # bending moment on A [N m]
-        for f in (self.slot_a, self.slot_b, self.id_a, self.id_b, self.radius, self.state,
-                  self.break_step, self.f_n, self.m_n, self.f_t, self.m_t):
+        # what a step reads and writes of a bond, one record per bond (8-byte members
+        # first); the ids and the failure step apart
+        fb.dense(ti.i, self.capacity).place(self.f_t, self.m_t, self.f_n, self.m_n,
+                                            self.radius, self.slot_a, self.slot_b, self.state)
+        for f in (self.id_a, self.id_b, self.break_step):
             fb.dense(ti.i, self.capacity).place(f)
-        # this step's loads of each bond (written when the gather applies them)
-        self.active = ti.field(ti.i32)  # 1: the bond loaded its particles this step
-        self.load_force = ti.Vector.field(3, ti.f64)  # force on A [N]
-        self.load_torque_a = ti.Vector.field(3, ti.f64)  # torque on A [N m]
-        self.load_torque_b = ti.Vector.field(3, ti.f64)  # torque on B [N m]
-        for f in (self.active, self.load_force, self.load_torque_a, self.load_torque_b):
-            fb.dense(ti.i, self.capacity).place(f)
+        # this step's loads of each bond, summed per particle by the engine's gather: force
+        # on A; torque on A at [2 b] and on B at [2 b + 1]. A bond that fails or is removed
+        # zeroes them, and they stay zero.
+        self.load_force = ti.Vector.field(3, ti.f64)
+        self.load_torque = ti.Vector.field(3, ti.f64)
+        fb.dense(ti.i, self.capacity).place(self.load_force)
+        fb.dense(ti.i, 2 * self.capacity).place(self.load_torque)
         # per particle slot, its bonds: entry b (it is A) or -b - 1 (it is B), by bond index
         self.list_start = ti.field(ti.i32)
         self.list_count = ti.field(ti.i32)
@@ -209,14 +213,15 @@ class BondTable:
 
     @ti.kernel
     def compute(self, pool: ti.template(), dt: ti.f64, lx: ti.f64, ly: ti.f64, step: ti.i32):
-        """:meth:`update` storing the loads per bond for the engine's gather."""
+        """:meth:`update` storing the loads per bond (``load_force``, ``load_torque``) for
+        the engine's gather."""
         self._update_all(pool, dt, lx, ly, step, False)
 
     @ti.func
     def _update_all(self, pool: ti.template(), dt, lx, ly, step, apply: ti.template()):
         """The bond step. ``apply``: add the loads to the particles here (atomic adds);
-        otherwise store them per bond (``active``, ``load_*``) for the engine's per-particle
-        gather, which sums them in a fixed order."""
+        otherwise store them per bond (``load_force``, ``load_torque``) for the engine's
+        per-particle gather, which sums them in a fixed order."""
         ti.loop_config(serialize=self.serial)
         for b in range(self.n_bonds[None]):
             self._bond_item(pool, b, dt, lx, ly, step, apply)
@@ -228,7 +233,6 @@ class BondTable:
         st = ti.static(self.cfg.shear_stiffness)
         sig_c = ti.static(self.cfg.normal_strength)
         tau_c = ti.static(self.cfg.shear_strength)
-        self.active[b] = 0
         if self.state[b] == INTACT:
             i = self.slot_a[b]
             j = self.slot_b[b]
@@ -236,18 +240,17 @@ class BondTable:
                 self.released[None] += self._stored(b)
                 self.state[b] = REMOVED
                 self.break_step[b] = step
+                self._clear_loads(b)
             else:
                 self._update_one(pool, b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step, apply)
 
     @ti.func
     def _update_one(self, pool: ti.template(), b, i, j, dt, lx, ly, sn, st, sig_c, tau_c, step,
                     apply: ti.template()):
-        d = pool.position[j] - pool.position[i]
-        d[0] -= lx * ti.round(d[0] / lx)
-        d[1] -= ly * ti.round(d[1] / ly)
+        d = minimum_image(pool.position[j] - pool.position[i], lx, ly)
         dist = d.norm()
         if dist > 0.0:
-            nrm = d / dist
+            nrm = d * (1.0 / dist)
             ri = pool.radius[i]
             rj = pool.radius[j]
             gap = dist - ri - rj
@@ -258,8 +261,11 @@ class BondTable:
             w_rel = pool.angular_velocity[i] - pool.angular_velocity[j]
             rb = self.radius[b]
             area = math.pi * rb * rb
-            inertia = 0.25 * math.pi * rb**4
+            inertia = 0.25 * math.pi * (rb * rb) * (rb * rb)
             polar = 2.0 * inertia
+            inv_rb = 1.0 / rb  # one quotient: 1/A = 1/(pi R_b^2), R_b/I = 2 R_b/J = 4/(pi R_b^3)
+            inv_area = ti.static(1.0 / math.pi) * inv_rb * inv_rb
+            rb_over_i = 4.0 * inv_area * inv_rb
             vn = v_rel.dot(nrm)
             v_t = v_rel - vn * nrm
             wn = w_rel.dot(nrm)
@@ -274,14 +280,15 @@ class BondTable:
             self.m_t[b] = m_t
             sigma = 0.0
             if ti.static(self.abs_mode):
-                sigma = ti.abs(f_n) / area + m_t.norm() * rb / inertia
+                sigma = ti.abs(f_n) * inv_area + m_t.norm() * rb_over_i
             else:
-                sigma = -f_n / area + m_t.norm() * rb / inertia
-            tau = f_t.norm() / area + ti.abs(m_n) * rb / polar
+                sigma = -f_n * inv_area + m_t.norm() * rb_over_i
+            tau = f_t.norm() * inv_area + ti.abs(m_n) * (0.5 * rb_over_i)
             if sigma >= sig_c or tau >= tau_c:
                 self.released[None] += self._stored(b)
                 self.state[b] = FAILED_NORMAL if sigma >= sig_c else FAILED_SHEAR
                 self.break_step[b] = step
+                self._clear_loads(b)
             else:
                 force_i = -f_n * nrm + f_t
                 moment_i = m_n * nrm + m_t
@@ -291,10 +298,17 @@ class BondTable:
                     pool.torque[i] += moment_i + arm_i.cross(f_t)
                     pool.torque[j] += -moment_i - arm_j.cross(f_t)
                 else:
-                    self.active[b] = 1
                     self.load_force[b] = force_i
-                    self.load_torque_a[b] = moment_i + arm_i.cross(f_t)
-                    self.load_torque_b[b] = -moment_i - arm_j.cross(f_t)
+                    self.load_torque[2 * b] = moment_i + arm_i.cross(f_t)
+                    self.load_torque[2 * b + 1] = -moment_i - arm_j.cross(f_t)
+
+    @ti.func
+    def _clear_loads(self, b):
+        """Bond b no longer loads its particles (it failed or lost a particle)."""
+        zero = ti.Vector([0.0, 0.0, 0.0])
+        self.load_force[b] = zero
+        self.load_torque[2 * b] = zero
+        self.load_torque[2 * b + 1] = zero
 
     @ti.func
     def _stored(self, b):

@@ -34,6 +34,7 @@ COLUMNS = (
     # are these factors times sqrt(m* sqrt(R* delta)): beta_n = 2 sqrt(5/6) beta_hat
     # sqrt(m* 1.5 k1 delta^0.5) with k1 = (4/3) E* sqrt(R*), and beta_t = 2 beta_hat
     # sqrt(m* k_t) with k_t = xi_t 8 G* sqrt(R* delta) (spec 2.4, 3.1)
+    "unloading_factor",  # 1 / (1 - lambda_p): k2 = unloading_factor * k1 [-]
     "normal_damping_factor",  # 2 sqrt(5/6) beta_hat sqrt(2 E*) [kg^0.5 m^-0.5 s^-1]
     "tangential_damping_factor",  # 2 beta_hat sqrt(8 xi_t G*) [kg^0.5 m^-0.5 s^-1]
 )
@@ -82,6 +83,7 @@ def _row(a: MaterialConfig, b: MaterialConfig, p: PairConfig, n: float,
         p.adhesion_stiffness,
         kb / (ka + kb),
         p.plasticity_ratio ** (1.0 / n),
+        1.0 / (1.0 - p.plasticity_ratio),
         2.0 * math.sqrt(5.0 / 6.0) * beta_hat * math.sqrt(2.0 * e_star),
         2.0 * beta_hat * math.sqrt(8.0 * xi_t * g_star),
     ]

@@ -37,6 +37,10 @@ PAIR_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_r
 PAIR_OUT_F64 = ("arm_i", "arm_j", "roll_force", "stress_i", "stress_j")  # per step only
 HISTORY_F64 = ("delta_max", "delta_prev", "fhys_prev", "work_a", "work_b", "delta_ref")
 PAIR_I32 = ("event_a", "event_b", "sibling")  # all history
+# constants of a pair, set at every rebuild: reduced mass m* = m_i m_j / (m_i + m_j) [kg]
+# and sqrt(R*), R* = r_i r_j / (r_i + r_j) [m^0.5] (two quotients and a root per contact
+# and step fewer)
+PAIR_CONST_F64 = ("m_star", "sqrt_r_star")
 
 
 @ti.data_oriented
@@ -62,6 +66,8 @@ class ContactTable:
             setattr(self, name, ti.field(ti.f64))
         for name in PAIR_I32:
             setattr(self, name, ti.field(ti.i32))
+        for name in PAIR_CONST_F64:
+            setattr(self, name, ti.field(ti.f64))
         self.spring = ti.Vector.field(3, ti.f64)
         # this step's contribution of each pair (see the module docstring)
         self.touch = ti.field(ti.i32)
@@ -72,7 +78,7 @@ class ContactTable:
         # one record per pair (array of structures, 8-byte members first), so one pair
         # touches two or three cache lines instead of one per field.
         fb.dense(ti.i, self.capacity).place(
-            self.spring, *(getattr(self, n) for n in HISTORY_F64),
+            self.spring, *(getattr(self, n) for n in (*HISTORY_F64, *PAIR_CONST_F64)),
             *(getattr(self, n) for n in PAIR_I32))
         fb.dense(ti.i, self.capacity).place(
             self.pair_force, self.pair_nft, self.normal_force,
@@ -205,10 +211,29 @@ class ContactTable:
                 self._visit(pool, grid, i, skin, True)
         self.n_pairs[None] = self.required[None]
 
+    @ti.func
+    def _set_constants(self, pool: ti.template(), c):
+        i = self.owner[c]
+        j = self.partner[c]
+        mi = pool.mass[i]
+        mj = pool.mass[j]
+        ri = pool.radius[i]
+        rj = pool.radius[j]
+        self.m_star[c] = mi * mj / (mi + mj)
+        self.sqrt_r_star[c] = ti.sqrt(ri * rj / (ri + rj))
+
+    @ti.kernel
+    def set_constants(self, pool: ti.template()):
+        """The constants of every pair (``PAIR_CONST_F64``; after a checkpoint load)."""
+        for c in range(self.n_pairs[None]):
+            self._set_constants(pool, c)
+
     @ti.kernel
     def remap_history(self, pool: ti.template()):
-        """Give each new pair the history of the same (owner, partner id) pair, if any."""
+        """Give each new pair the history of the same (owner, partner id) pair, if any, and
+        its constants."""
         for c in range(self.n_pairs[None]):
+            self._set_constants(pool, c)
             i = self.owner[c]
             key = self.partner_id[c]
             found = -1

@@ -246,9 +246,10 @@ class Kernels:
         self.trace[trace_slot, 1] = ft[2]
 
     @ti.func
-    def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, dt,
-             delta_max, spring, fhys_prev, no_adhesion):
-        """Contact force of one contact (spec 2-3), shared by particle pairs and plates.
+    def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, sr,
+             dt, delta_max, spring, fhys_prev, no_adhesion):
+        """Contact force of one contact (spec 2-3), shared by particle pairs and plates
+        (``m_star``, ``r_star``: reduced mass and radius; ``sr`` = sqrt(r_star)).
 
         Returns the force on body i, the tangential force, f_hys, the updated history, the
         normal force magnitude, the energy increments (damping n/t, friction, hysteresis) and
@@ -258,18 +259,16 @@ class Kernels:
         """
         n = ti.static(self.n)
         chi = ti.static(self.chi)
-        # n = 1.5 with the default damping: sqrt(R*) and sqrt(delta) taken once, and both
-        # damping coefficients from one root, sqrt(m* sqrt(R* delta)) (the factors are
-        # table columns): four square roots fewer per contact than the general forms
+        # n = 1.5 with the default damping: sqrt(delta) taken once and both damping
+        # coefficients from one root, sqrt(m* sqrt(R* delta)) (the factors are table
+        # columns): five square roots fewer per contact than the general forms
         hertz = ti.static(n == 1.5)
         fused = ti.static(n == 1.5 and self.damping_mode == DAMPING_TANGENT_SQRT56)
         e_star = tab[a, b, COL["e_star"]]
         beta_hat = tab[a, b, COL["beta_hat"]]
         k1 = 0.0
-        sr = 0.0
         sd = 0.0
         if ti.static(hertz):
-            sr = ti.sqrt(r_star)
             sd = ti.sqrt(delta)
             k1 = (4.0 / 3.0) * e_star * sr
         else:
@@ -283,7 +282,7 @@ class Kernels:
         delta_p = 0.0
         k_adh = 0.0
         if ti.static(self.plastic):
-            k2 = k1 / (1.0 - tab[a, b, COL["plasticity_ratio"]])
+            k2 = k1 * tab[a, b, COL["unloading_factor"]]
             delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
         if ti.static(self.adhesive):
             f0 = tab[a, b, COL["pull_off_force"]]
@@ -720,8 +719,8 @@ class Kernels:
                      - ti.Vector([0.0, 0.0, v_plate]))
             a = pool.material[i]
             (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
-                self.plate, a, w, delta, prev_f[i], nrm, v_rel, pool.mass[i], r, dt,
-                dmax_f[i], spring_f[i], fprev_f[i], 0)
+                self.plate, a, w, delta, prev_f[i], nrm, v_rel, pool.mass[i], r, ti.sqrt(r),
+                dt, dmax_f[i], spring_f[i], fprev_f[i], 0)
             if ti.static(self.breakage):
                 if self.breakable[a]:
                     wk = work_f[i] + work
@@ -871,18 +870,16 @@ class Kernels:
             if ti.static(self.breakage):
                 pool.stress_sum[i] = pool.stress_sum[i] + st
         if ti.static(bonds != None):  # noqa: E711
+            # entry e >= 0: particle i is side A of bond e; else side B of bond -e - 1. The
+            # loads of a failed or removed bond are zero: summed without a test (which
+            # side, and whether the bond holds, vary from entry to entry at random)
             lo = bonds.list_start[i]
             for k in range(lo, lo + bonds.list_count[i]):
                 e = bonds.list_entry[k]
-                if e >= 0:
-                    if bonds.active[e]:
-                        f += bonds.load_force[e]
-                        t += bonds.load_torque_a[e]
-                else:
-                    b = -e - 1
-                    if bonds.active[b]:
-                        f -= bonds.load_force[b]
-                        t += bonds.load_torque_b[b]
+                side_b = e < 0
+                b = ti.select(side_b, -e - 1, e)
+                f += ti.select(side_b, -1.0, 1.0) * bonds.load_force[b]
+                t += bonds.load_torque[2 * b + ti.select(side_b, 1, 0)]
         pool.force[i] = pool.force[i] + f
         pool.torque[i] = pool.torque[i] + t
 
@@ -927,18 +924,17 @@ class Kernels:
                  delta, ri, rj, dt, max_overlap_fraction, step, row):
         """Pair c = (i, j) touches (``delta`` > 0 beyond its reference overlap): the contact
         law, the history, this step's contribution and the overlap guard."""
-        nrm = d / dist
+        nrm = d * (1.0 / dist)
         arm_i = ri - 0.5 * overlap
         arm_j = rj - 0.5 * overlap
         v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i * nrm)
                  - pool.velocity[j] - pool.angular_velocity[j].cross(-arm_j * nrm))
-        mi = pool.mass[i]
-        mj = pool.mass[j]
         a = pool.material[i]
         b = pool.material[j]
+        sr = table.sqrt_r_star[c]  # the pair's constants, set at each rebuild
         (force, f_t, f_hys, dmax, s, fn_abs, d_n, d_t, fric, hyst, work) = self._law(
-            self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, mi * mj / (mi + mj),
-            ri * rj / (ri + rj), dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
+            self.pair, a, b, delta, table.delta_prev[c], nrm, v_rel, table.m_star[c], sr * sr,
+            sr, dt, table.delta_max[c], table.spring[c], table.fhys_prev[c],
             table.sibling[c])
         table.stress_i[c] = 0.0
         table.stress_j[c] = 0.0

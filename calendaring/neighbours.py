@@ -50,6 +50,19 @@ def space_filling_order(position, lx: float, ly: float, bits: int = 10) -> np.nd
     return np.argsort(key, kind="stable")
 
 
+@ti.func
+def minimum_image(d, lx, ly):
+    """Shortest periodic image of a separation vector ``d`` in a cell periodic in x and y
+    with lengths ``lx``, ``ly`` (z untouched). The quotient and the rounding (a library call
+    on x86) are taken only for the components longer than half the cell, which few pairs
+    have: d - L round(d/L) is d itself below that."""
+    if ti.abs(d[0]) >= 0.5 * lx:
+        d[0] -= lx * ti.round(d[0] / lx)
+    if ti.abs(d[1]) >= 0.5 * ly:
+        d[1] -= ly * ti.round(d[1] / ly)
+    return d
+
+
 def scan_blocks(n: int) -> int:
     """Size of the block-total scratch field :func:`exclusive_scan` needs for ``n`` entries."""
     return max(1, (int(n) + SCAN_BLOCK - 1) // SCAN_BLOCK)
@@ -161,9 +174,7 @@ class CellGrid:
     @ti.func
     def minimum_image(self, d):
         """Shortest periodic image of a separation vector (x and y only)."""
-        d[0] -= self.lx * ti.round(d[0] / self.lx)
-        d[1] -= self.ly * ti.round(d[1] / self.ly)
-        return d
+        return minimum_image(d, self.lx, self.ly)
 
     @ti.kernel
     def bin(self, pool: ti.template()):

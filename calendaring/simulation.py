@@ -655,6 +655,7 @@ class Simulation:
             if name not in ("n_pairs", "capacity"):
                 getattr(self.table, name).from_numpy(np.asarray(arr))
         self.table.n_pairs[None] = int(tab["n_pairs"])
+        self.table.set_constants(self.pool)
         self.table.build_incoming(self.pool)
         self.kernels.ledger.from_numpy(np.asarray(state["ledger"], float))
         self.kernels.need_rebuild[None] = int(state["need_rebuild"])

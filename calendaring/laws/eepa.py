@@ -96,7 +96,7 @@ def eepa_adhesion_stiffness(delta_p, r_star, k2, surface_energy, kadh_direct,
         # a huge k_adh (an adhesive force persisting down to delta -> 0).
         if f_pull > 0.0 and f_pull < reach * (1.0 - 1e-9):
             if ti.static(chi == n):  # delta_min^chi = delta_min^n: no root to take
-                k_adh = f_pull / (dpn - f_pull / k2)
+                k_adh = f_pull * k2 / (reach - f_pull)  # = F_pull / (dpn - F_pull / k2)
             else:
                 delta_min = ti.pow(dpn - f_pull / k2, 1.0 / n)
                 k_adh = f_pull / power_n(delta_min, chi)
