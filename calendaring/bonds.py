@@ -278,15 +278,22 @@ class BondTable:
             self.f_t[b] = f_t
             self.m_n[b] = m_n
             self.m_t[b] = m_t
-            sigma = 0.0
+            # sigma = s0 + |M_t| R_b/I >= sigma_c and tau = |F_t|/A + t0 >= tau_c, tested
+            # without the two roots: |x| c >= rest <=> rest <= 0 or x.x c^2 >= rest^2
+            s0 = 0.0
             if ti.static(self.abs_mode):
-                sigma = ti.abs(f_n) * inv_area + m_t.norm() * rb_over_i
+                s0 = ti.abs(f_n) * inv_area
             else:
-                sigma = -f_n * inv_area + m_t.norm() * rb_over_i
-            tau = f_t.norm() * inv_area + ti.abs(m_n) * (0.5 * rb_over_i)
-            if sigma >= sig_c or tau >= tau_c:
+                s0 = -f_n * inv_area
+            rest_n = sig_c - s0
+            rest_t = tau_c - ti.abs(m_n) * (0.5 * rb_over_i)
+            fail_n = (rest_n <= 0.0) | (m_t.norm_sqr() * (rb_over_i * rb_over_i)
+                                        >= rest_n * rest_n)
+            fail_t = (rest_t <= 0.0) | (f_t.norm_sqr() * (inv_area * inv_area)
+                                        >= rest_t * rest_t)
+            if fail_n or fail_t:
                 self.released[None] += self._stored(b)
-                self.state[b] = FAILED_NORMAL if sigma >= sig_c else FAILED_SHEAR
+                self.state[b] = FAILED_NORMAL if fail_n else FAILED_SHEAR
                 self.break_step[b] = step
                 self._clear_loads(b)
             else:

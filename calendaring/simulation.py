@@ -125,7 +125,8 @@ class Simulation:
         rho = np.array([self.cfg.materials[n].density for n in self.material_names])
         mass = self.cfg.numerics.density_scaling * rho[material] * (4.0 / 3.0) * math.pi * radius**3
         perm = None
-        if order == "space":
+        position = np.asarray(position, dtype=float)
+        if order == "space" and np.all(np.isfinite(position)):  # else pool.add says why
             d = self.cfg.domain
             perm = space_filling_order(position, d.cell_x, d.cell_y)
         ids = self.pool.add(position, radius, material, mass, velocity=velocity,

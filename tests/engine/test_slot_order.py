@@ -88,6 +88,8 @@ def test_unknown_order_is_refused():
         with pytest.raises(ValueError, match="permutation"):
             sim.pool.add([[1e-5, 1e-5, 1e-5], [2e-5, 1e-5, 1e-5]], [1e-6, 1e-6], [0, 0],
                          [1e-15, 1e-15], order=[0, 0])
+        with pytest.raises(ValueError, match="finite"):
+            sim.add_particles([[1e-5, np.nan, 1e-5]], [1e-6], [0], order="space")
         assert sim.pool.slots_used == 0  # nothing half-written
     finally:
         sim.destroy()
