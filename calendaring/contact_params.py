@@ -30,11 +30,11 @@ COLUMNS = (
     "adhesion_stiffness",  # k_adh for adhesion_mode direct_kadh [N m^-chi]
     "stiffness_partition",  # e_i = k_j / (k_i + k_j): share of pair work taken by body i
     "plastic_factor",  # lambda_p^(1/n): delta_p = plastic_factor * delta_max [-]
+    "unloading_factor",  # 1 / (1 - lambda_p): k2 = unloading_factor * k1 [-]
     # n = 1.5 with damping_mode tangent_sqrt56 (the default), both damping coefficients
     # are these factors times sqrt(m* sqrt(R* delta)): beta_n = 2 sqrt(5/6) beta_hat
     # sqrt(m* 1.5 k1 delta^0.5) with k1 = (4/3) E* sqrt(R*), and beta_t = 2 beta_hat
     # sqrt(m* k_t) with k_t = xi_t 8 G* sqrt(R* delta) (spec 2.4, 3.1)
-    "unloading_factor",  # 1 / (1 - lambda_p): k2 = unloading_factor * k1 [-]
     "normal_damping_factor",  # 2 sqrt(5/6) beta_hat sqrt(2 E*) [kg^0.5 m^-0.5 s^-1]
     "tangential_damping_factor",  # 2 beta_hat sqrt(8 xi_t G*) [kg^0.5 m^-0.5 s^-1]
 )

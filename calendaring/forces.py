@@ -246,6 +246,15 @@ class Kernels:
         self.trace[trace_slot, 1] = ft[2]
 
     @ti.func
+    def _close_step(self, n_p, n_c, trace_slot, top: ti.template()):
+        """The sums of a whole step over ``n_p`` particle chunks and ``n_c`` pair chunks:
+        plate forces (and trace row ``trace_slot``), then the energy terms, in chunk order;
+        the one-launch and multi-step paths both close a step here."""
+        self._close_plates(n_p, trace_slot, top)
+        self._fold_ledger(0, n_p, top)
+        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, top)
+
+    @ti.func
     def _law(self, tab: ti.template(), a, b, delta, delta_prev, nrm, v_rel, m_star, r_star, sr,
              dt, delta_max, spring, fhys_prev, no_adhesion):
         """Contact force of one contact (spec 2-3), shared by particle pairs and plates
@@ -390,9 +399,7 @@ class Kernels:
             n_break = breakage._events_all(pool)
         _, n_p = self._chunks(pool.n_slots[None], CHUNK_P)
         _, n_c = self._chunks(table.n_pairs[None], CHUNK_C)
-        self._close_plates(n_p, trace_slot, True)
-        self._fold_ledger(0, n_p, True)
-        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, True)
+        self._close_step(n_p, n_c, trace_slot, True)
         return self._flags(pool) | (n_break << 3)
 
     @ti.kernel
@@ -534,9 +541,7 @@ class Kernels:
         """Close step s of a burst (one worker, the others held at the barrier): the plate
         forces and energy terms summed in chunk order, the trace row, the flags, whether
         the burst stops here, and the phases' work counters reset."""
-        self._close_plates(n_p, trace0 + s, False)
-        self._fold_ledger(0, n_p, False)
-        self._fold_ledger(MAX_CHUNKS, MAX_CHUNKS + n_c, False)
+        self._close_step(n_p, n_c, trace0 + s, False)
         flags = self._flags(pool)
         n_break = 0
         if ti.static(breakage != None):  # noqa: E711
@@ -1062,8 +1067,9 @@ class Kernels:
                 d = grid.minimum_image(pool.position[j] - pool.position[i])
                 ri = pool.radius[i]
                 rj = pool.radius[j]
+                sr = table.sqrt_r_star[c]  # the R* the contact law uses
                 ee += self._stored(self.pair, pool.material[i], pool.material[j],
-                                   ri + rj - d.norm() - table.delta_ref[c], ri * rj / (ri + rj),
+                                   ri + rj - d.norm() - table.delta_ref[c], sr * sr,
                                    table.delta_max[c])
         return ti.Vector([ek, er, eg, ee])
 
@@ -1073,9 +1079,8 @@ class Kernels:
         chi = ti.static(self.chi)
         e = 0.0
         if delta > 0.0:
-            lam = tab[a, b, COL["plasticity_ratio"]]
             k1 = eepa_loading_stiffness(tab[a, b, COL["e_star"]], r_star, n)
-            k2 = k1 / (1.0 - lam)
+            k2 = k1 * tab[a, b, COL["unloading_factor"]]  # as the contact law has it
             dmax = ti.max(delta_max, delta)
             delta_p = tab[a, b, COL["plastic_factor"]] * dmax  # lambda_p^(1/n) delta_max
             k_adh = eepa_adhesion_stiffness(delta_p, r_star, k2, tab[a, b, COL["surface_energy"]],
