@@ -254,10 +254,13 @@ class BondTable:
             ri = pool.radius[i]
             rj = pool.radius[j]
             gap = dist - ri - rj
-            arm_i = (ri + 0.5 * gap) * nrm
-            arm_j = -(rj + 0.5 * gap) * nrm
-            v_rel = (pool.velocity[i] + pool.angular_velocity[i].cross(arm_i)
-                     - pool.velocity[j] - pool.angular_velocity[j].cross(arm_j))
+            # lever arms to the bond point: (R_A + g/2) n from A and -(R_B + g/2) n from B,
+            # so w_A x arm_A - w_B x arm_B = (a_A w_A + a_B w_B) x n: one cross product
+            a_i = ri + 0.5 * gap
+            a_j = rj + 0.5 * gap
+            v_rel = (pool.velocity[i] - pool.velocity[j]
+                     + (a_i * pool.angular_velocity[i] + a_j * pool.angular_velocity[j]).cross(
+                         nrm))
             w_rel = pool.angular_velocity[i] - pool.angular_velocity[j]
             rb = self.radius[b]
             area = math.pi * rb * rb
@@ -299,15 +302,16 @@ class BondTable:
             else:
                 force_i = -f_n * nrm + f_t
                 moment_i = m_n * nrm + m_t
+                nft = nrm.cross(f_t)  # arm x F_t = a_A n x F_t on A, -a_B n x (-F_t) on B
                 if ti.static(apply):
                     pool.force[i] += force_i
                     pool.force[j] -= force_i
-                    pool.torque[i] += moment_i + arm_i.cross(f_t)
-                    pool.torque[j] += -moment_i - arm_j.cross(f_t)
+                    pool.torque[i] += moment_i + a_i * nft
+                    pool.torque[j] += -moment_i + a_j * nft
                 else:
                     self.load_force[b] = force_i
-                    self.load_torque[2 * b] = moment_i + arm_i.cross(f_t)
-                    self.load_torque[2 * b + 1] = -moment_i - arm_j.cross(f_t)
+                    self.load_torque[2 * b] = moment_i + a_i * nft
+                    self.load_torque[2 * b + 1] = -moment_i + a_j * nft
 
     @ti.func
     def _clear_loads(self, b):

@@ -344,9 +344,9 @@ class Kernels:
         # mispredicted often enough to cost ~10 % of the pair loop)
         s_new = ti.sqrt(limit * limit / ti.max(ft2, 1e-300)) * f_t
         slide = ft2 > limit * limit
-        if ti.static(self.track_energy):
-            if slide and k_t > 0.0:
-                friction_loss = (s.norm_sqr() - s_new.norm_sqr()) / (2.0 * k_t)
+        if ti.static(self.track_energy):  # |s_new| = limit when sliding; selected, too
+            friction_loss = ti.select(slide & (k_t > 0.0),
+                                      (s.norm_sqr() - limit * limit) / (2.0 * k_t), 0.0)
         s = ti.select(slide, s_new, s)
         f_t = ti.select(slide, s_new, f_t)
         damp_t = ti.select(slide, 0.0, damp_t)
@@ -794,6 +794,7 @@ class Kernels:
         predictable order: the list is written without a branch) and ending the contacts of
         those out of reach; then the contacts of the listed pairs (:meth:`_pair_one`)."""
         m = lo
+        energy = ti.Vector.zero(ti.f64, 4)  # the chunk's ledger terms, summed in registers
         for c in range(lo, hi):
             i = table.owner[c]
             j = table.partner[c]
@@ -805,13 +806,14 @@ class Kernels:
                 near = ti.select((table.delta_ref[c] > 0.0) | (d.norm_sqr() < reach * reach),
                                  1, 0)
                 if near == 0 and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
-                    self._end_touch(pool, table, c, i, j, row)
+                    energy[3] += self._end_touch(pool, table, c, i, j)
             table.near[m] = c
             m += near
         for k in range(lo, m):
             c = table.near[k]
-            self._pair_one(pool, table, grid, c, table.owner[c], table.partner[c], dt,
-                           max_overlap_fraction, step, row)
+            energy += self._pair_one(pool, table, grid, c, table.owner[c], table.partner[c],
+                                     dt, max_overlap_fraction, step)
+        self._ledger_pairs(energy, row)
 
     @ti.func
     def _pair_item(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, dt,
@@ -821,7 +823,18 @@ class Kernels:
         j = table.partner[c]
         table.touch[c] = 0
         if pool.alive[i] and pool.alive[j]:
-            self._pair_one(pool, table, grid, c, i, j, dt, max_overlap_fraction, step, row)
+            self._ledger_pairs(self._pair_one(pool, table, grid, c, i, j, dt,
+                                              max_overlap_fraction, step), row)
+
+    @ti.func
+    def _ledger_pairs(self, energy, row):
+        """Add a pair's or a chunk's energy terms (normal and tangential damping, friction,
+        hysteretic work) to ledger row ``row``."""
+        if ti.static(self.track_energy):
+            self._ledger_add(L_DAMP_N, energy[0], row)
+            self._ledger_add(L_DAMP_T, energy[1], row)
+            self._ledger_add(L_FRICTION, energy[2], row)
+            self._ledger_add(L_HYST, energy[3], row)
 
     @ti.kernel
     def gather_pair_forces(self, pool: ti.template(), table: ti.template(),
@@ -890,7 +903,9 @@ class Kernels:
 
     @ti.func
     def _pair_one(self, pool: ti.template(), table: ti.template(), grid: ti.template(), c, i, j,
-                  dt, max_overlap_fraction, step, row):
+                  dt, max_overlap_fraction, step):
+        """Candidate pair c = (i, j) of live particles this step; returns its energy terms
+        (see :meth:`_ledger_pairs`)."""
         d = grid.minimum_image(pool.position[j] - pool.position[i])
         d2 = d.norm_sqr()
         ri = pool.radius[i]
@@ -898,6 +913,7 @@ class Kernels:
         reach = ri + rj
         ref = table.delta_ref[c]
         touching = False
+        energy = ti.Vector.zero(ti.f64, 4)
         # most candidates are apart: the root only for those within reach (sqrt(fl(r^2))
         # = r, so the test is the same as reach - |d| > 0) and for relatives
         if ref > 0.0 or d2 < reach * reach:
@@ -911,24 +927,26 @@ class Kernels:
             delta = overlap - ref  # the contact law acts on the overlap beyond the reference
             if delta > 0.0 and dist > 0.0:
                 touching = True
-                self._contact(pool, table, c, i, j, d, dist, overlap, delta, ri, rj, dt,
-                              max_overlap_fraction, step, row)
+                energy = self._contact(pool, table, c, i, j, d, dist, overlap, delta, ri, rj,
+                                       dt, max_overlap_fraction, step)
         if not touching and (table.delta_max[c] > 0.0 or table.delta_prev[c] != 0.0):
-            self._end_touch(pool, table, c, i, j, row)
+            energy[3] += self._end_touch(pool, table, c, i, j)
+        return energy
 
     @ti.func
-    def _end_touch(self, pool: ti.template(), table: ti.template(), c, i, j, row):
-        """Pair c separated this step: the last trapezoid of the hysteretic work down to
-        separation (chunk row ``row``), then :meth:`_end_contact`."""
-        if ti.static(self.track_energy):
-            self._ledger_add(L_HYST, -0.5 * table.fhys_prev[c] * table.delta_prev[c], row)
+    def _end_touch(self, pool: ti.template(), table: ti.template(), c, i, j):
+        """Pair c separated this step: :meth:`_end_contact`; returns the last trapezoid of
+        the hysteretic work down to separation."""
+        hyst = -0.5 * table.fhys_prev[c] * table.delta_prev[c]
         self._end_contact(pool, table, c, i, j)
+        return hyst
 
     @ti.func
     def _contact(self, pool: ti.template(), table: ti.template(), c, i, j, d, dist, overlap,
-                 delta, ri, rj, dt, max_overlap_fraction, step, row):
+                 delta, ri, rj, dt, max_overlap_fraction, step):
         """Pair c = (i, j) touches (``delta`` > 0 beyond its reference overlap): the contact
-        law, the history, this step's contribution and the overlap guard."""
+        law, the history, this step's contribution and the overlap guard; returns the energy
+        terms (see :meth:`_ledger_pairs`)."""
         nrm = d * (1.0 / dist)
         arm_i = ri - 0.5 * overlap
         arm_j = rj - 0.5 * overlap
@@ -959,11 +977,7 @@ class Kernels:
         table.roll_force[c] = self.pair[a, b, COL["rolling_friction"]] * ti.abs(f_hys)
         if delta > max_overlap_fraction * ti.min(ri, rj):
             self._flag(GUARD_OVERLAP, i, step, delta / ti.min(ri, rj))
-        if ti.static(self.track_energy):
-            self._ledger_add(L_DAMP_N, d_n, row)
-            self._ledger_add(L_DAMP_T, d_t, row)
-            self._ledger_add(L_FRICTION, fric, row)
-            self._ledger_add(L_HYST, hyst, row)
+        return ti.Vector([d_n, d_t, fric, hyst])
 
     @ti.func
     def _end_contact(self, pool: ti.template(), table: ti.template(), c, i, j):

@@ -225,6 +225,34 @@ def test_rotate_spring_keeps_magnitude_and_is_tangent():
     np.testing.assert_allclose(out2, tangent, rtol=1e-12, atol=1e-14 * np.abs(tangent).max())
 
 
+def test_rotate_spring_small_tilts_take_the_series_to_the_last_bit():
+    """A spring tilted out of the tangent plane by a small angle (the case of every step:
+    x = (s.n)^2/|s|^2 ~ 1e-11 in a compacting bed) is restored by the series of
+    1/sqrt(1 - x), on either side of the switch to the root at x = SERIES_FRACTION."""
+    from calendaring.laws.tangential import SERIES_FRACTION
+
+    rng = np.random.default_rng(1)
+    m = 200
+    normals = rng.normal(size=(m, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    tangent = rng.normal(size=(m, 3))
+    tangent -= np.einsum("ij,ij->i", tangent, normals)[:, None] * normals
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    # x = sin^2(theta) from 1e-16 up to 1e-4, with pairs straddling the switch
+    x = np.concatenate([np.logspace(-16, -4, m - 40),
+                        SERIES_FRACTION * (1.0 + np.linspace(-1e-3, 1e-3, 40))])
+    theta = np.arcsin(np.sqrt(x))
+    scale = 10.0 ** rng.uniform(-12, -3, m)  # N or N m: magnitudes of forces and moments
+    springs = scale[:, None] * (np.cos(theta)[:, None] * tangent
+                                + np.sin(theta)[:, None] * normals)
+    out = np.zeros_like(springs)
+    _rotate(springs, normals, out)
+    mag = np.linalg.norm(springs, axis=1)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), mag, rtol=2e-15)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", out, normals) / mag, 0.0, atol=1e-15)
+    np.testing.assert_allclose(out / mag[:, None], tangent, rtol=0, atol=3e-15)
+
+
 def test_rolling_torque_below_cap_capped_and_guard():
     """Spec 3.3: tau = -M omega_hat; |tau| <= |omega|/(dt inv_I); zero for |omega| < 1e-12."""
     d = 7.74e-6
