@@ -18,6 +18,12 @@ breakage, energy ledger) of the paper preset: particle-steps/s at about 1k, 5k, 
 device memory per particle slot at the full pool capacity, and the first-compile and
 cached start-up times of a fresh process.
 
+``paper``: a whole calendering run of the paper preset (or ``--preset NAME``) as
+``calendaring run`` does it, from random insertion through settling, pre-compaction,
+relaxation, calendering with bonds and breakage, to unloading: wall time and steps/s of
+each stage, as the run file records them. The paper preset takes of the order of an hour on
+2 cores; ``--run-dir`` keeps the run file and its checkpoint, and a rerun resumes.
+
 ``overhead``: the Hertz-mode step on a one-particle bed, per thread count in a fresh
 process: the per-step cost that does not grow with the bed (the kernel launch from Python,
 the host's flag check and, above one thread, the thread pool's dispatch of each parallel
@@ -25,6 +31,7 @@ loop).
 
     python benchmarks/bench_dem.py versus --threads 2 --np 2
     python benchmarks/bench_dem.py scaling --threads 2
+    python benchmarks/bench_dem.py paper --threads 2
     python benchmarks/bench_dem.py overhead --threads 1 2
 
 On a GPU (``--arch cuda``; ``versus`` then runs ours alone, ``scaling`` takes ``1M``, the 5k
@@ -688,6 +695,55 @@ def cmd_overhead(args) -> dict:
             "rows": rows}
 
 
+def cmd_paper(args) -> dict:
+    """A whole calendering run of a preset as a user starts it (``calendaring run``): the
+    electrode built from scratch (settling, pre-compaction, relaxation), calendered with
+    bonds and breakage, unloaded; wall time and steps/s of each stage from the run file."""
+    from calendaring.config import load_preset, with_overrides
+    from calendaring.run import CalenderRun
+    from calendaring.runfile import read_run
+
+    cfg = with_overrides(load_preset(args.preset), {"numerics.threads": args.threads,
+                                                    "numerics.arch": args.arch})
+    folder = Path(args.run_dir) if args.run_dir else Path(tempfile.mkdtemp(prefix="bench-run-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{args.preset}.h5"
+    runner = CalenderRun(cfg, path, progress=True, preset=args.preset)
+    resume = runner.checkpoint.exists()  # a run stopped part-way goes on from its checkpoint
+    t0 = time.perf_counter()
+    runner.execute(resume=resume)
+    process_wall = time.perf_counter() - t0
+    rec = read_run(path)
+    info = rec.info
+    stages = {name: {**st, "steps_per_s": st["steps"] / st["wall_seconds"]
+                     if st["wall_seconds"] > 0 else None}
+              for name, st in info.get("stages", {}).items()}
+    bed = info.get("bed_after_build", {})
+    snap = rec.snapshots[-1] if rec.snapshots else None
+    result = {
+        "benchmark": "bench_dem paper", "preset": args.preset, "arch": args.arch,
+        "threads": args.threads, "resumed": resume,
+        "wall_s": info["wall_seconds"], "process_wall_s": process_wall,
+        "stages": stages,
+        "particles_at_start": info.get("n_particles"),
+        "particles_at_end": len(snap.radius) if snap is not None else None,
+        "bonds": info.get("bonds_created"), "breakage_events": info.get("breakage_events"),
+        "calender_steps": info.get("calender_steps"), "dt_s": info.get("dt"),
+        "plate_speed_m_s": info.get("plate_speed"),
+        "final_pressure_Pa": float(rec.pressure["value"][-1]) if len(rec.pressure["value"])
+        else None,
+        "bed_after_build": bed, "run_file": str(path) if args.run_dir else None,
+    }
+    if not args.run_dir:
+        shutil.rmtree(folder, ignore_errors=True)
+    cal = stages.get("calender", {})
+    print(f"[paper] {args.preset}: {result['wall_s'] / 60:.1f} min in all; calendering "
+          f"{cal.get('steps')} steps in {cal.get('wall_seconds', 0) / 60:.1f} min "
+          f"({cal.get('steps_per_s') or 0:.0f} steps/s), {result['breakage_events']} "
+          f"breakage events", flush=True)
+    return result
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -736,6 +792,17 @@ def main(argv=None) -> int:
     o.add_argument("--steps", type=int, default=5000)
     o.add_argument("--repeat", type=int, default=5)
     o.add_argument("--out", default=str(RESULTS / "bench_dem_overhead.json"))
+    w = sub.add_parser("paper", help="a whole calendering run of a preset: wall time per "
+                       "stage")
+    w.add_argument("--preset", default="paper")
+    w.add_argument("--threads", type=int, default=2)
+    w.add_argument("--arch", default="cpu", choices=["cpu", "cuda"])
+    w.add_argument("--run-dir", default=None,
+                   help="keep the run file (and its checkpoint) here; a rerun resumes a "
+                        "stopped run (default: a temporary folder, removed)")
+    w.add_argument("--out", default=None,
+                   help="JSON path (default results/bench_dem_paper.json, or "
+                        "bench_dem_paper_PRESET.json for another preset)")
     o1 = sub.add_parser("overhead-one", help=argparse.SUPPRESS)
     o1.add_argument("--threads", type=int, required=True)
     o1.add_argument("--steps", type=int, default=5000)
@@ -744,8 +811,11 @@ def main(argv=None) -> int:
     if args.cmd == "overhead-one":  # child of cmd_overhead: one JSON line on stdout
         print(json.dumps(overhead_once(args.threads, args.steps, args.repeat)))
         return 0
-    result = {"versus": cmd_versus, "scaling": cmd_scaling,
-              "overhead": cmd_overhead}[args.cmd](args)
+    if args.cmd == "paper" and args.out is None:
+        tail = "" if args.preset == "paper" else f"_{args.preset}"
+        args.out = str(RESULTS / f"bench_dem_paper{tail}.json")
+    result = {"versus": cmd_versus, "scaling": cmd_scaling, "overhead": cmd_overhead,
+              "paper": cmd_paper}[args.cmd](args)
     result.update({"software": _software(), "python": sys.version.split()[0],
                    "machine": platform.machine(),
                    "processor": platform.processor(), "cpus": os.cpu_count(),

@@ -347,6 +347,10 @@ class CalenderRun:
         rs, sim, cfg = self.rs, self.sim, self.cfg
         name = STAGES[rs.stage]
         bar = Progress(name, rs.stage_steps, self.progress)
+        # wall seconds and steps per stage, over resumes (the run file's info.stages)
+        stages = rs.info.setdefault("stages", {})
+        rec = stages.setdefault(name, {"wall_seconds": 0.0, "steps": 0})
+        wall_in, t_in = rec["wall_seconds"], time.perf_counter()
         if name == "calender":
             self._snapshots_due()
         while rs.stage_step < rs.stage_steps:
@@ -370,6 +374,8 @@ class CalenderRun:
                 if len(block) and np.all(block[:, 3] <= 0.0):
                     stop = True
             bar.update(rs.stage_step, extra)
+            rec["wall_seconds"] = wall_in + time.perf_counter() - t_in
+            rec["steps"] = rs.stage_step
             if stop:
                 break
             rs.wall = wall0 + time.perf_counter() - t0

@@ -10,7 +10,7 @@ Root attributes: ``format`` = "calendaring-run", ``schema_version``, ``software_
 ``created`` (UTC ISO 8601), ``cell_x``, ``cell_y``, ``thickness``, ``stroke`` (m),
 ``breakage_model`` (``"tavares_ufrj"`` or ``"none"`` for the no-breakage control),
 ``info`` (JSON: build report, time steps, plate speed, bond count, pool capacity, breakage
-event count, springback, wall time).
+event count, springback, wall time; ``stages``: wall seconds and steps of each stage).
 
 =============================  ======  ==================================================
 dataset                        unit    content
