@@ -21,6 +21,7 @@ import pytest
 
 from calendaring.bonds import INTACT
 from calendaring.cli import main
+from calendaring.run import STAGES
 from calendaring.runfile import (
     BONDS,
     PRESSURE,
@@ -75,6 +76,12 @@ def test_run_file_follows_the_schema(tiny_run):
     assert [s.depth for s in rec.snapshots] == pytest.approx([0, 2e-6, 4e-6, 6.5e-6],
                                                              abs=0.5 * step_travel)
     assert rec.pressure["value"][-1] > 0
+    # each stage's wall seconds and steps; together no more than the run's wall time
+    stages = rec.info["stages"]
+    assert "calender" in stages and set(stages) <= set(STAGES)
+    assert stages["calender"]["steps"] == rec.info["calender_steps"]
+    assert all(st["steps"] > 0 and st["wall_seconds"] > 0 for st in stages.values())
+    assert sum(st["wall_seconds"] for st in stages.values()) <= rec.info["wall_seconds"]
 
 
 def test_snapshot_porosity_is_mass_balance_and_no_particle_is_lost(tiny_run):
@@ -214,6 +221,9 @@ def test_resume_after_sigkill_gives_the_uninterrupted_result(tiny_run, tmp_path)
     assert "resumed from" in res.stderr
     assert not ckpt.exists()
     a, b = read_run(tiny_run), read_run(out)
+    # the stage records carry over the kill: the same steps per stage
+    assert {k: v["steps"] for k, v in b.info["stages"].items()} == {
+        k: v["steps"] for k, v in a.info["stages"].items()}
     for key in PRESSURE:
         np.testing.assert_array_equal(a.pressure[key], b.pressure[key])
     for key in SERIES_UNITS:
