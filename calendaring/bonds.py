@@ -80,6 +80,13 @@ def find_bond_pairs(position: np.ndarray, radius: np.ndarray, material: np.ndarr
     return out[order]
 
 
+@ti.func
+def _disk(rb):
+    """Area A = pi R_b^2 and bending moment of area I = pi R_b^4 / 4 of a bond disk of
+    radius ``rb`` (its polar moment is J = 2 I)."""
+    return math.pi * rb * rb, 0.25 * math.pi * (rb * rb) * (rb * rb)
+
+
 @ti.data_oriented
 class BondTable:
     """Fixed list of bonds created once (capacity = number of bonds, at least 1).
@@ -263,8 +270,7 @@ class BondTable:
                          nrm))
             w_rel = pool.angular_velocity[i] - pool.angular_velocity[j]
             rb = self.radius[b]
-            area = math.pi * rb * rb
-            inertia = 0.25 * math.pi * (rb * rb) * (rb * rb)
+            area, inertia = _disk(rb)
             polar = 2.0 * inertia
             inv_rb = 1.0 / rb  # one quotient: 1/A = 1/(pi R_b^2), R_b/I = 2 R_b/J = 4/(pi R_b^3)
             inv_area = ti.static(1.0 / math.pi) * inv_rb * inv_rb
@@ -324,9 +330,7 @@ class BondTable:
     @ti.func
     def _stored(self, b):
         """Elastic energy held by bond b [J] (linear springs)."""
-        rb = self.radius[b]
-        area = math.pi * rb * rb
-        inertia = 0.25 * math.pi * rb**4
+        area, inertia = _disk(self.radius[b])
         sn = ti.static(self.cfg.normal_stiffness)
         st = ti.static(self.cfg.shear_stiffness)
         return 0.5 * (self.f_n[b] ** 2 / (sn * area) + self.f_t[b].norm_sqr() / (st * area)
