@@ -135,7 +135,10 @@ class ContactTable:
         return out
 
     def copy_from(self, other: "ContactTable") -> None:
-        """Copy pairs, history and segments from a smaller table (used when growing)."""
+        """Copy the pairs, their history and their segments from a smaller table whose
+        rebuild found it too small (used when growing). The segments are the ones
+        :meth:`save_history` kept: the failed :meth:`count_candidates` has already
+        overwritten ``other``'s own with the new, larger counts."""
         n = int(other.n_pairs[None])
         for name in ("owner", "partner", "partner_id", *PAIR_F64, *PAIR_I32):
             arr = getattr(self, name).to_numpy()
@@ -145,7 +148,7 @@ class ContactTable:
         sp[:n] = other.spring.to_numpy()[:n]
         self.spring.from_numpy(sp)
         for name in ("seg_start", "seg_count"):
-            getattr(self, name).from_numpy(getattr(other, name).to_numpy())
+            getattr(self, name).from_numpy(getattr(other, "old_" + name).to_numpy())
         self.n_pairs[None] = n
 
     # ------------------------------------------------------------- rebuild kernels

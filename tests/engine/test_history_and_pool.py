@@ -69,6 +69,38 @@ def test_run_with_extra_rebuilds_equals_run_without():
         b.destroy()
 
 
+def test_pair_table_growth_keeps_every_contact_history():
+    # A rebuild that finds the table too small grows it. The pairs' history (here a
+    # sheared pair's spring and delta_max) must come along, looked up through the segments
+    # saved before the failed count overwrote them: new candidates of lower slots shift
+    # the pair's segment.
+    sim = Simulation(frictionless_pair(restitution=0.5, plasticity=0.8, friction=1.0,
+                                       pairs_per_particle=1), capacity=128)
+    try:
+        g = np.arange(30)  # a 5 x 6 lattice of CB spheres 4.1 um apart: no candidates
+        lattice = np.column_stack([4e-6 + 4.1e-6 * (g % 5), 4e-6 + 4.1e-6 * (g // 5),
+                                   np.full(30, 50e-6)])
+        sim.add_particles(lattice, np.full(30, 0.9e-6), [1] * 30)
+        r = 3.87e-6
+        ids = sim.add_particles([[40e-6, 30e-6, 20e-6], [40e-6 + 2 * r - 1e-9, 30e-6, 20e-6]],
+                                [r, r], [0, 0], velocity=[[0.5, 0, 0.1], [-0.5, 0, -0.1]])
+        sim.run(100)
+        spring0, dmax0 = _spring_of(sim, *ids)
+        assert np.linalg.norm(spring0) > 0 and dmax0 > 0
+        cap0 = sim.table.capacity
+        # a sphere between each two lattice neighbours: 98 new candidate pairs
+        mid = [(lattice[k] + lattice[k + 1]) / 2 for k in range(30) if k % 5 < 4]
+        mid += [(lattice[k] + lattice[k + 5]) / 2 for k in range(25)]
+        sim.add_particles(np.array(mid), np.full(len(mid), 0.9e-6), [1] * len(mid))
+        sim.rebuild()
+        assert sim.table.capacity > cap0  # the table grew in this rebuild
+        spring1, dmax1 = _spring_of(sim, *ids)
+        np.testing.assert_allclose(spring1, spring0, rtol=1e-12)
+        assert dmax1 == dmax0
+    finally:
+        sim.destroy()
+
+
 @ti.kernel
 def _spawn(pool: ti.template(), n: ti.i32, radius: ti.f64):
     for k in range(n):
