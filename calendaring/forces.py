@@ -1055,12 +1055,28 @@ class Kernels:
                  dt: ti.f64, gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64) -> ti.types.vector(
             4, ti.f64):
         """(kinetic translational, kinetic rotational, gravity potential, elastic) [J]."""
+        return self._energies(pool, table, grid, dt, gravity, z_bottom, z_top, None)
+
+    @ti.kernel
+    def energies_marked(self, pool: ti.template(), table: ti.template(), grid: ti.template(),
+                        dt: ti.f64, gravity: ti.f64, z_bottom: ti.f64, z_top: ti.f64,
+                        mark: ti.template()) -> ti.types.vector(4, ti.f64):
+        """:meth:`energies` of the particles with ``mark > 0`` and of the pairs with at
+        least one such particle."""
+        return self._energies(pool, table, grid, dt, gravity, z_bottom, z_top, mark)
+
+    @ti.func
+    def _energies(self, pool: ti.template(), table: ti.template(), grid: ti.template(), dt,
+                  gravity, z_bottom, z_top, mark: ti.template()):
         ek = 0.0
         er = 0.0
         eg = 0.0
         ee = 0.0
         for i in range(pool.n_slots[None]):
-            if pool.alive[i]:
+            take = pool.alive[i] != 0
+            if ti.static(mark != None):  # noqa: E711
+                take = take and mark[i] > 0
+            if take:
                 m = pool.mass[i]
                 v = pool.velocity[i] + 0.5 * dt * pool.inv_mass[i] * pool.force[i]
                 w = pool.angular_velocity[i] + 0.5 * dt * pool.inv_inertia[i] * pool.torque[i]
@@ -1077,7 +1093,10 @@ class Kernels:
         for c in range(table.n_pairs[None]):
             i = table.owner[c]
             j = table.partner[c]
-            if pool.alive[i] and pool.alive[j]:
+            take = pool.alive[i] != 0 and pool.alive[j] != 0
+            if ti.static(mark != None):  # noqa: E711
+                take = take and (mark[i] > 0 or mark[j] > 0)
+            if take:
                 d = grid.minimum_image(pool.position[j] - pool.position[i])
                 ri = pool.radius[i]
                 rj = pool.radius[j]
@@ -1086,6 +1105,41 @@ class Kernels:
                                    ri + rj - d.norm() - table.delta_ref[c], sr * sr,
                                    table.delta_max[c])
         return ti.Vector([ek, er, eg, ee])
+
+    @ti.kernel
+    def mark_breakage_region(self, pool: ti.template(), table: ti.template(),
+                             bonds: ti.template(), breakage: ti.template(), mark: ti.template(),
+                             n_break: ti.i32):
+        """Before the ``n_break`` listed parents are replaced: ``mark`` = 2 for them, 1 for
+        their candidate partners and bond partners (the particles whose loads the
+        replacement can change: a fragment lies inside its parent, so whatever touches it
+        touched the parent), 0 elsewhere."""
+        for i in range(pool.n_slots[None]):
+            mark[i] = 0
+        for k in range(n_break):
+            mark[breakage.brk_slot[k]] = 2
+        for c in range(table.n_pairs[None]):
+            i = table.owner[c]
+            j = table.partner[c]
+            if mark[i] == 2:
+                ti.atomic_max(mark[j], 1)
+            if mark[j] == 2:
+                ti.atomic_max(mark[i], 1)
+        if ti.static(bonds != None):  # noqa: E711
+            for k in range(n_break):
+                p = breakage.brk_slot[k]
+                lo = bonds.list_start[p]
+                for e in range(lo, lo + bonds.list_count[p]):
+                    entry = bonds.list_entry[e]  # b: p is side A; -b - 1: side B
+                    b = ti.select(entry < 0, -entry - 1, entry)
+                    q = ti.select(entry < 0, bonds.slot_a[b], bonds.slot_b[b])
+                    ti.atomic_max(mark[q], 1)
+
+    @ti.kernel
+    def mark_from(self, pool: ti.template(), mark: ti.template(), lo: ti.i32):
+        """``mark`` = 1 for the slots from ``lo`` on (the fragments just spawned)."""
+        for i in range(lo, pool.n_slots[None]):
+            mark[i] = 1
 
     @ti.func
     def _stored(self, tab: ti.template(), a, b, delta, r_star, delta_max):

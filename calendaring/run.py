@@ -156,6 +156,7 @@ class CalenderRun:
         self.rs = RunState()
         self.rng = np.random.default_rng(cfg.numerics.seed)
         self._last_ckpt = time.perf_counter()
+        self._phase0: dict = {}  # phase records of the run before this process
 
     # ------------------------------------------------------------------ entry point
     def execute(self, resume: bool = False) -> Path:
@@ -166,10 +167,13 @@ class CalenderRun:
                 self._resume()
             else:
                 self._start()
+            self._phase0 = {k: dict(v) for k, v in self.rs.info.get("phases", {}).items()}
+            self._add_phase("setup", time.perf_counter() - t0 - sum(self.sim.phase_seconds.values()))
             wall0 = self.rs.wall
             while self.rs.stage < len(STAGES):
                 self._run_stage(t0, wall0)
             self.rs.wall = wall0 + time.perf_counter() - t0
+            self.rs.info["phases"] = self._phase_totals()
             path = self._write()
             if self.checkpoint.exists():
                 self.checkpoint.unlink()
@@ -360,8 +364,9 @@ class CalenderRun:
             extra = f"plate {to_um(sim.z_top - sim.z_bottom):7.3f} um"
             stop = False
             if name == "calender":
-                row = self._record_series()
-                self._snapshots_due()
+                with sim.phase("records"):
+                    row = self._record_series()
+                    self._snapshots_due()
                 extra += f" P {to_mpa(row[SERIES.index('top_pressure')]):9.3f} MPa"
                 if sim.breakage_on:
                     extra += f" breakages {len(rs.breakage)}"
@@ -504,11 +509,30 @@ class CalenderRun:
         every = self.cfg.output.checkpoint_interval
         if every <= 0 or time.perf_counter() - self._last_ckpt < every:
             return
-        self._take_breakage()
-        runfile.write_checkpoint(self.checkpoint, {
-            "config": config_json(self.cfg), "config_hash": config_hash(self.cfg),
-            "run": self.rs, "rng": self.rng.bit_generator.state, "sim": self.sim.save_state()})
+        with self.sim.phase("checkpoint"):
+            self._take_breakage()
+            self.rs.info["phases"] = self._phase_totals()
+            runfile.write_checkpoint(self.checkpoint, {
+                "config": config_json(self.cfg), "config_hash": config_hash(self.cfg),
+                "run": self.rs, "rng": self.rng.bit_generator.state,
+                "sim": self.sim.save_state()})
         self._last_ckpt = time.perf_counter()
+
+    def _add_phase(self, name: str, seconds: float) -> None:
+        """Book host seconds outside the engine's own phases (the set-up)."""
+        e = self._phase0.setdefault(name, {"seconds": 0.0, "calls": 0})
+        e["seconds"] += seconds
+        e["calls"] += 1
+
+    def _phase_totals(self) -> dict:
+        """Wall seconds and calls per phase over the whole run, resumes included (the run
+        file's ``info.phases``; see :meth:`Simulation.phase`)."""
+        out = {k: dict(v) for k, v in self._phase0.items()}
+        for k, sec in self.sim.phase_seconds.items():
+            e = out.setdefault(k, {"seconds": 0.0, "calls": 0})
+            e["seconds"] += sec
+            e["calls"] += self.sim.phase_calls[k]
+        return out
 
     def _write(self) -> Path:
         rs, cfg = self.rs, self.cfg

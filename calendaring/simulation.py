@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import logging
 import math
+import time
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -99,6 +101,31 @@ class Simulation:
         self.n_breakage_events = 0
         self._break_log: list[dict] = []
         self.breakage_active = True  # False: stressing energy is not evaluated (no breakage)
+        self.local_energy = True  # a replacement's energy change over its region only
+        self._mark = None  # per slot: the region of a replacement (made with the breakage)
+        self._mark_tree = None
+        # wall seconds and calls per host-side phase (see :meth:`phase`)
+        self.phase_seconds: dict[str, float] = {}
+        self.phase_calls: dict[str, int] = {}
+        self._phase_stack: list[list[float]] = []
+
+    @contextmanager
+    def phase(self, name: str):
+        """Book the wall time of a block under ``name`` in :attr:`phase_seconds` (and one
+        call in :attr:`phase_calls`), exclusive of the phases nested inside it: ``steps``
+        (time-step launches), ``rebuild`` (neighbour lists), ``breakage`` (replacing broken
+        particles, without its rebuild), ``checks`` and ``trace``; the run adds its own."""
+        t0 = time.perf_counter()
+        self._phase_stack.append([0.0])
+        try:
+            yield
+        finally:
+            inner = self._phase_stack.pop()[0]
+            el = time.perf_counter() - t0
+            self.phase_seconds[name] = self.phase_seconds.get(name, 0.0) + el - inner
+            self.phase_calls[name] = self.phase_calls.get(name, 0) + 1
+            if self._phase_stack:
+                self._phase_stack[-1][0] += el
 
     # ------------------------------------------------------------------ set-up
     def add_particles(self, position, radius, material, velocity=None,
@@ -204,6 +231,10 @@ class Simulation:
 
     def rebuild(self) -> None:
         """Rebuild the candidate-pair list, keeping every contact's history."""
+        with self.phase("rebuild"):
+            return self._rebuild()
+
+    def _rebuild(self) -> None:
         self._ensure_grid()
         skin = self.cfg.numerics.skin
         self.table.save_history(self.pool)
@@ -255,28 +286,54 @@ class Simulation:
                 self.breakage.destroy()
             self.breakage = BreakageKernels(self.cfg, d_max)
             self._breakage_dmax = d_max
+        if self._mark is None:
+            import taichi as ti
+
+            fb = ti.FieldsBuilder()
+            self._mark = ti.field(ti.i32)
+            fb.dense(ti.i, self.pool.capacity).place(self._mark)
+            self._mark_tree = fb.finalize()
         if self._fracture_init_upto < self.pool.slots_used:
             self.breakage.init_particles(self.pool, self._fracture_init_upto)
             self._fracture_init_upto = self.pool.slots_used
 
-    def _stored_energy(self) -> tuple[float, float]:
-        """(kinetic + rotational + gravity + contact elastic, contact elastic) [J]; the bonds
-        of a broken particle book their energy as ``bond_released`` themselves."""
-        ek, er, eg, ee = self.kernels.energies(self.pool, self.table, self.grid, self.dt,
-                                               self.gravity, self.z_bottom,
-                                               self.z_top).to_numpy()
+    def _stored_energy(self, marked: bool = False) -> tuple[float, float]:
+        """(kinetic + rotational + gravity + contact elastic, contact elastic) [J] of every
+        particle and pair, or (``marked``) of the breakage region only (see
+        :meth:`Kernels.mark_breakage_region`); the bonds of a broken particle book their
+        energy as ``bond_released`` themselves."""
+        args = (self.pool, self.table, self.grid, self.dt, self.gravity, self.z_bottom,
+                self.z_top)
+        if marked:
+            ek, er, eg, ee = self.kernels.energies_marked(*args, self._mark).to_numpy()
+        else:
+            ek, er, eg, ee = self.kernels.energies(*args).to_numpy()
         return float(ek + er + eg + ee), float(ee)
 
     def _replace(self, n: int) -> None:
         """Replace the ``n`` parents flagged this step by their fragments."""
+        with self.phase("breakage"):
+            return self._replace_parents(n)
+
+    def _replace_parents(self, n: int) -> None:
         from calendaring.forces import L_HYST
 
         track = self.cfg.numerics.track_energy
+        # the energy the replacement removes: over the parents, the fragments and whatever
+        # touches or is bonded to them (the rest of the bed does not change), unless
+        # local_energy is off (every particle and pair; the same to round-off, tested)
+        local = track and self.local_energy
+        if local:
+            self.kernels.mark_breakage_region(self.pool, self.table, self.bonds, self.breakage,
+                                              self._mark, n)
+            first_fragment = self.pool.slots_used
         if track:
-            before, ee_before = self._stored_energy()
+            before, ee_before = self._stored_energy(local)
         d = self.cfg.domain
         self.breakage.replace(self.pool, self.grid, n, self.step_count, self.z_bottom, self.z_top,
                               d.cell_x, d.cell_y)
+        if local:
+            self.kernels.mark_from(self.pool, self._mark, first_fragment)
         if int(self.breakage.frag_overflow[None]):
             raise SimulationError(f"step {self.step_count}: more fragments than the scratch "
                                   f"size {self.breakage.max_frag} (internal sizing error)",
@@ -295,7 +352,7 @@ class Simulation:
         self.breakage.init_new_contacts(self.pool, self.table, self.grid, self.step_count)
         self._recompute_forces()
         if track:
-            after, ee_after = self._stored_energy()
+            after, ee_after = self._stored_energy(local)
             self.breakage_ledger += before - after
             # the plastic work done so far is unchanged by the replacement
             self.kernels.ledger[L_HYST] += ee_after - ee_before
@@ -357,7 +414,8 @@ class Simulation:
             n = min(remaining, self.steps_per_launch, TRACE_LEN - self._trace_n)
             if callback is not None and callback_interval:
                 n = min(n, callback_interval - self.step_count % callback_interval)
-            done = self._burst(n) if n > 1 and self._burst_ok else self._step()
+            with self.phase("steps"):
+                done = self._burst(n) if n > 1 and self._burst_ok else self._step()
             remaining -= done
             if callback is not None and callback_interval and \
                     self.step_count % callback_interval == 0:
@@ -482,6 +540,11 @@ class Simulation:
         return len(sa)
 
     def _flush_trace(self) -> None:
+        """Move the device's per-step plate record to the host."""
+        with self.phase("trace"):
+            return self._flush()
+
+    def _flush(self) -> None:
         n = self._trace_n
         if n:
             forces = self.kernels.trace.to_numpy()[:n]
@@ -505,6 +568,10 @@ class Simulation:
 
     def check(self) -> None:
         """Raise :class:`SimulationError` if a device guard fired (host sync)."""
+        with self.phase("checks"):
+            return self._check()
+
+    def _check(self) -> None:
         self.pool.check_overflow()
         if int(self.kernels.guard_count[None]) == 0:
             return
@@ -679,4 +746,7 @@ class Simulation:
         for obj in (self.pool, self.kernels, self.grid, self.table, self.bonds, self.breakage):
             if obj is not None:
                 obj.destroy()
+        if self._mark_tree is not None:
+            self._mark_tree.destroy()
         self.grid = self.table = self.bonds = self.breakage = None
+        self._mark = self._mark_tree = None
