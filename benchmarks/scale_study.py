@@ -4,10 +4,11 @@ the plate speed, to choose the production cell of the reference dataset.
 ``run`` drives one resumable sweep per case (``calendaring sweep --design reference
 --replicates K --role replicate``: the Table 4 parameters, seeds S .. S+K-1, one thread a
 run): cells of ``--cells`` micrometres at the sweep preset's plate speed, and at the
-largest cell the inertial numbers of ``--inertial`` (the paper's 1e-3, 5e-3) with
-``--speed-seeds`` seeds. Each case is a folder ``cell-<um>um`` or ``cell-<um>um-I<I>``
-under ``--out``; rerunning the same command resumes every case (finished runs are kept,
-runs in flight resume from their checkpoints), so the study survives a stop.
+largest cell the inertial numbers of ``--inertial`` (5e-3, then the paper's 1e-3) with
+``--speed-seeds`` seeds; the cheaper cases run first. Each case is a folder
+``cell-<um>um`` or ``cell-<um>um-I<I>`` under ``--out``; rerunning the same command
+resumes every case (finished runs are kept, runs in flight resume from their
+checkpoints), so the study survives a stop.
 
 ``report`` reads the run files back (through ``calendaring.runfile.read_run``) and writes,
 per case: runs done, wall seconds per run (one thread), particles at start and end,
@@ -68,10 +69,30 @@ def sweep_command(case: dict, folder: Path, seed: int, workers: int, preset: str
     return cmd
 
 
+def code_commit() -> dict:
+    """Git commit (and whether the tree differs from it) of the calendaring package that
+    runs the study: its provenance."""
+    import calendaring
+
+    here = Path(calendaring.__file__).resolve().parent
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
+                          text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=here,
+                           capture_output=True, text=True).stdout.strip()
+    return {"package": str(here), "commit": head or None, "modified": bool(dirty)}
+
+
 def cmd_run(args) -> int:
+    from calendaring.fileio import write_json
+
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     todo = cases(args.cells, args.inertial, args.seeds, args.speed_seeds)
+    prov_path = out / "provenance.json"
+    prov = json.loads(prov_path.read_text()) if prov_path.exists() else {"invocations": []}
+    prov["invocations"].append({"date": time.strftime("%Y-%m-%d %H:%M:%S"),
+                                "argv": sys.argv, **code_commit()})
+    write_json(prov_path, prov)
     for k, case in enumerate(todo):
         folder = out / case["name"]
         print(f"[scale] case {k + 1}/{len(todo)}: {case['name']} ({case['seeds']} seeds) "
@@ -215,7 +236,9 @@ def cmd_report(args) -> int:
     for r in rows:
         for k in ("_curves", "_hist"):
             r["summary"].pop(k)
+    prov = out / "provenance.json"
     result = {"benchmark": "scale_study", "reference": str(args.reference),
+              "provenance": json.loads(prov.read_text()) if prov.exists() else None,
               "base_case": base["name"] if base else None, "cases": rows,
               "date": time.strftime("%Y-%m-%d %H:%M:%S")}
     path = write_json(Path(args.json), result)
@@ -234,7 +257,7 @@ def main(argv=None) -> int:
         p.add_argument("--out", required=True, help="study folder (one sweep per case)")
         p.add_argument("--cells", type=float, nargs="+", default=[30.0, 50.0, 70.0, 100.0],
                        help="cell sides [um]")
-        p.add_argument("--inertial", type=float, nargs="*", default=[1e-3, 5e-3],
+        p.add_argument("--inertial", type=float, nargs="*", default=[5e-3, 1e-3],
                        help="inertial numbers also run at the largest cell")
         p.add_argument("--seeds", type=int, default=3, help="seeds per cell")
         p.add_argument("--speed-seeds", type=int, default=2,
