@@ -69,20 +69,9 @@ def sweep_command(case: dict, folder: Path, seed: int, workers: int, preset: str
     return cmd
 
 
-def code_commit() -> dict:
-    """Git commit (and whether the tree differs from it) of the calendaring package that
-    runs the study: its provenance."""
-    import calendaring
-
-    here = Path(calendaring.__file__).resolve().parent
-    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True,
-                          text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], cwd=here,
-                           capture_output=True, text=True).stdout.strip()
-    return {"package": str(here), "commit": head or None, "modified": bool(dirty)}
-
-
 def cmd_run(args) -> int:
+    from bench_dem import _software  # this folder is on sys.path when run as a script
+
     from calendaring.fileio import write_json
 
     out = Path(args.out)
@@ -91,7 +80,7 @@ def cmd_run(args) -> int:
     prov_path = out / "provenance.json"
     prov = json.loads(prov_path.read_text()) if prov_path.exists() else {"invocations": []}
     prov["invocations"].append({"date": time.strftime("%Y-%m-%d %H:%M:%S"),
-                                "argv": sys.argv, **code_commit()})
+                                "argv": sys.argv, **_software()})
     write_json(prov_path, prov)
     for k, case in enumerate(todo):
         folder = out / case["name"]

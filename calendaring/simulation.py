@@ -32,6 +32,7 @@ smallest fragment; it is fixed when the run starts.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -49,6 +50,18 @@ from calendaring.state import ParticlePool
 from calendaring.timestep import critical_timestep, rayleigh_time
 
 log = logging.getLogger(__name__)
+
+
+def _timed(name: str):
+    """Method decorator: each call's wall time is booked under phase ``name``
+    (:meth:`Simulation.phase`)."""
+    def wrap(method):
+        @functools.wraps(method)
+        def timed(self, *args, **kwargs):
+            with self.phase(name):
+                return method(self, *args, **kwargs)
+        return timed
+    return wrap
 
 
 class Simulation:
@@ -229,12 +242,9 @@ class Simulation:
             cap = max(64, self.cfg.numerics.pairs_per_particle * max(1, self.pool.n_alive()))
             self.table = ContactTable(self.pool.capacity, cap)
 
+    @_timed("rebuild")
     def rebuild(self) -> None:
         """Rebuild the candidate-pair list, keeping every contact's history."""
-        with self.phase("rebuild"):
-            return self._rebuild()
-
-    def _rebuild(self) -> None:
         self._ensure_grid()
         skin = self.cfg.numerics.skin
         self.table.save_history(self.pool)
@@ -310,12 +320,9 @@ class Simulation:
             ek, er, eg, ee = self.kernels.energies(*args).to_numpy()
         return float(ek + er + eg + ee), float(ee)
 
+    @_timed("breakage")
     def _replace(self, n: int) -> None:
         """Replace the ``n`` parents flagged this step by their fragments."""
-        with self.phase("breakage"):
-            return self._replace_parents(n)
-
-    def _replace_parents(self, n: int) -> None:
         from calendaring.forces import L_HYST
 
         track = self.cfg.numerics.track_energy
@@ -539,12 +546,9 @@ class Simulation:
         self.bonds.set_bonds(sa, sb, ia, ib, rb)
         return len(sa)
 
+    @_timed("trace")
     def _flush_trace(self) -> None:
         """Move the device's per-step plate record to the host."""
-        with self.phase("trace"):
-            return self._flush()
-
-    def _flush(self) -> None:
         n = self._trace_n
         if n:
             forces = self.kernels.trace.to_numpy()[:n]
@@ -566,12 +570,9 @@ class Simulation:
         n, worst = self.kernels.contact_stats(self.pool, self.table).to_numpy()
         return int(n), float(worst)
 
+    @_timed("checks")
     def check(self) -> None:
         """Raise :class:`SimulationError` if a device guard fired (host sync)."""
-        with self.phase("checks"):
-            return self._check()
-
-    def _check(self) -> None:
         self.pool.check_overflow()
         if int(self.kernels.guard_count[None]) == 0:
             return
