@@ -54,15 +54,15 @@ def _bed(local: bool) -> Simulation:
     sim.set_top_plate(z=21e-6, velocity=-1.0)
     sim.create_bonds()
     sim.start_breakage()
-    e50 = float(bk.e50(2 * rp, cfg.materials["AM"], cfg.breakage))
-    mass = 4740.0 * 4 / 3 * math.pi * rp**3
     for slot, factor in ((0, 50.0), (4, 20.0)):
-        _doom(sim, slot, factor * e50 * mass)
+        _doom(sim, slot, factor)
     return sim
 
 
-def _doom(sim, slot, work):
-    sim.pool.stress_bank[slot] = work
+def _doom(sim, slot, factor, rp=4e-6):
+    """AM sphere ``slot`` (radius ``rp``) breaks at its next step with E_k = factor E50."""
+    e50 = float(bk.e50(2 * rp, sim.cfg.materials["AM"], sim.cfg.breakage))
+    sim.pool.stress_bank[slot] = factor * e50 * 4740.0 * 4 / 3 * math.pi * rp**3
     sim.pool.fracture_energy[slot] = 1.0
 
 
@@ -73,8 +73,7 @@ def test_region_energy_of_a_replacement_matches_the_whole_bed():
         try:
             assert sim.bonds is not None and int(sim.bonds.n_bonds[None]) > 10
             sim.run(5)
-            e50 = float(bk.e50(8e-6, sim.cfg.materials["AM"], sim.cfg.breakage))
-            _doom(sim, 3, 30.0 * e50 * 4740.0 * 4 / 3 * math.pi * (4e-6) ** 3)
+            _doom(sim, 3, 30.0)
             sim.run(55)
             events = sim.take_breakage()
             total = sim.energy()
