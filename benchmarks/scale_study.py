@@ -26,6 +26,13 @@ histograms against the largest cell's pairwise KL).
     python benchmarks/scale_study.py report --out studies/scale
 
 Writes JSON (default benchmarks/results/scale_study.json) and a Markdown table beside it.
+
+Every finished run is also kept as a compact archive, ``--archive`` (default
+benchmarks/results/scale_runs/<case>/<run>.npz: the raw pressure record, the breakage
+events' loads and diameters, the counts and wall seconds, and the run file's commit), so
+the study's evidence lives in the repository and survives the loss of the study folder:
+``report`` pools the archive with the folder's run files (one entry per case and seed),
+and ``run`` skips a case whose seeds are all archived.
 """
 
 from __future__ import annotations
@@ -84,6 +91,12 @@ def cmd_run(args) -> int:
     write_json(prov_path, prov)
     for k, case in enumerate(todo):
         folder = out / case["name"]
+        want = set(range(args.seed, args.seed + case["seeds"]))
+        have = {r["seed"] for r in _archived(Path(args.archive) / case["name"])}
+        if want <= have:
+            print(f"[scale] case {k + 1}/{len(todo)}: {case['name']}: seeds "
+                  f"{sorted(want)} archived, skipped", flush=True)
+            continue
         print(f"[scale] case {k + 1}/{len(todo)}: {case['name']} ({case['seeds']} seeds) "
               f"-> {folder}", flush=True)
         t0 = time.perf_counter()
@@ -91,12 +104,19 @@ def cmd_run(args) -> int:
                                           args.preset)).returncode
         print(f"[scale] {case['name']}: sweep exit {rc} after "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
+        n = archive(folder, Path(args.archive) / case["name"])
+        write_json(Path(args.archive) / "provenance.json", prov)
+        print(f"[scale] {case['name']}: {n} runs archived", flush=True)
         if rc not in (0, 3):  # 3: some runs failed (recorded in the manifest); go on
             return rc
     return 0
 
 
 # ---------------------------------------------------------------------- report
+def _num(v):
+    return None if v is None else float(v)
+
+
 def _runs(folder: Path) -> list[dict]:
     """The finished runs of one case: curve, histogram inputs, counts, wall seconds."""
     from calendaring.runfile import RunFileError, read_run
@@ -111,15 +131,54 @@ def _runs(folder: Path) -> list[dict]:
             rec = read_run(path)
         except RunFileError:
             continue  # in flight or cut short: not a finished run
-        out.append({"seed": rec.seed, "depth": rec.pressure["depth"],
+        out.append({"name": path.stem, "seed": int(rec.seed),
+                    "software_version": rec.software_version, "depth": rec.pressure["depth"],
                     "pressure": rec.pressure["value"], "stroke": rec.stroke,
                     "load": np.asarray(rec.breakage["peak_load"]),
                     "diameter": np.asarray(rec.breakage["diameter"]),
                     "events": len(rec.breakage["parent_id"]),
-                    "particles_start": rec.info["n_particles"],
+                    "particles_start": int(rec.info["n_particles"]),
                     "particles_end": int(rec.series["particles"][-1]),
-                    "wall_s": walls.get(path.name, rec.info.get("wall_seconds"))})
+                    "wall_s": _num(walls.get(path.name, rec.info.get("wall_seconds")))})
     return out
+
+
+_ARRAYS = ("depth", "pressure", "load", "diameter")
+
+
+def archive(folder: Path, dest: Path) -> int:
+    """Write each finished run of ``folder`` not yet in ``dest`` as ``<run>.npz``; returns
+    how many runs ``dest`` now holds."""
+    if folder.is_dir():
+        dest.mkdir(parents=True, exist_ok=True)
+        for r in _runs(folder):
+            path = dest / f"{r['name']}.npz"
+            if path.exists():
+                continue
+            tmp = path.with_suffix(".tmp.npz")
+            meta = {k: v for k, v in r.items() if k not in _ARRAYS}
+            np.savez_compressed(tmp, **{k: np.asarray(r[k]) for k in _ARRAYS},
+                                meta=np.array(json.dumps(meta)))
+            tmp.replace(path)
+    return len(list(dest.glob("*.npz"))) if dest.is_dir() else 0
+
+
+def _archived(dest: Path) -> list[dict]:
+    out = []
+    for path in sorted(dest.glob("*.npz")) if dest.is_dir() else []:
+        if path.name.endswith(".tmp.npz"):
+            continue
+        with np.load(path) as z:
+            out.append({**json.loads(str(z["meta"])), **{k: z[k] for k in _ARRAYS}})
+    return out
+
+
+def pooled(folder: Path, dest: Path) -> list[dict]:
+    """The case's finished runs, one per seed: the folder's run files, then the archive's."""
+    runs = {}
+    for r in _archived(dest) + (_runs(folder) if folder.is_dir() else []):
+        runs[int(r["seed"])] = r
+    return [runs[k] for k in sorted(runs)]
 
 
 def summarise(runs: list[dict], ref) -> dict:
@@ -210,8 +269,7 @@ def cmd_report(args) -> int:
     out = Path(args.out)
     rows = []
     for case in cases(args.cells, args.inertial, args.seeds, args.speed_seeds):
-        folder = out / case["name"]
-        runs = _runs(folder) if folder.is_dir() else []
+        runs = pooled(out / case["name"], Path(args.archive) / case["name"])
         if runs:
             rows.append({**case, "summary": summarise(runs, ref)})
     if not rows:
@@ -251,6 +309,8 @@ def main(argv=None) -> int:
         p.add_argument("--seeds", type=int, default=3, help="seeds per cell")
         p.add_argument("--speed-seeds", type=int, default=2,
                        help="seeds per extra plate speed")
+        p.add_argument("--archive", default=str(RESULTS / "scale_runs"),
+                       help="folder of the compact per-run archive (kept in the repository)")
     run = sub.choices["run"]
     run.add_argument("--seed", type=int, default=0, help="first seed")
     run.add_argument("--workers", type=int, default=2)
