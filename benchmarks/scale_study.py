@@ -29,7 +29,8 @@ Writes JSON (default benchmarks/results/scale_study.json) and a Markdown table b
 
 Every finished run is also kept as a compact archive, ``--archive`` (default
 benchmarks/results/scale_runs/<case>/<run>.npz: the raw pressure record, the breakage
-events' loads and diameters, the counts and wall seconds, and the run file's commit), so
+events' loads and diameters, the counts and wall seconds, and the run file's software
+version; the invocations' commits go to ``provenance.json`` beside them), so
 the study's evidence lives in the repository and survives the loss of the study folder:
 ``report`` pools the archive with the folder's run files (one entry per case and seed),
 and ``run`` skips a case whose seeds are all archived.
@@ -160,14 +161,17 @@ def archive(folder: Path, dest: Path) -> int:
             np.savez_compressed(tmp, **{k: np.asarray(r[k]) for k in _ARRAYS},
                                 meta=np.array(json.dumps(meta)))
             tmp.replace(path)
-    return len(list(dest.glob("*.npz"))) if dest.is_dir() else 0
+    return len(_archive_files(dest))
+
+
+def _archive_files(dest: Path) -> list[Path]:
+    """The archived runs of one case (a write cut short leaves only a ``.tmp.npz``)."""
+    return [p for p in sorted(dest.glob("*.npz")) if not p.name.endswith(".tmp.npz")]
 
 
 def _archived(dest: Path) -> list[dict]:
     out = []
-    for path in sorted(dest.glob("*.npz")) if dest.is_dir() else []:
-        if path.name.endswith(".tmp.npz"):
-            continue
+    for path in _archive_files(dest):
         with np.load(path) as z:
             out.append({**json.loads(str(z["meta"])), **{k: z[k] for k in _ARRAYS}})
     return out
