@@ -53,23 +53,24 @@ REFERENCE = HERE.parent / "data" / "reference.h5"
 DEPTHS_UM = (5.0, 10.0, 15.0, 19.5)
 
 
-def cases(cells: list[float], inertial: list[float], seeds: int, speed_seeds: int
-          ) -> list[dict]:
-    """The study's cases: every cell at the preset's speed, the largest at ``inertial``."""
+def cases(cells: list[float], inertial: list[float], seeds: int, speed_seeds: int,
+          speed_cells: list[float] | None = None) -> list[dict]:
+    """The study's cases: every cell at the preset's speed, then each of ``speed_cells``
+    (default: the largest cell) at each inertial number of ``inertial``."""
     out = [{"name": f"cell-{c:g}um", "cell_um": c, "inertial": None, "seeds": seeds}
            for c in cells]
-    big = max(cells)
-    out += [{"name": f"cell-{big:g}um-I{i:g}", "cell_um": big, "inertial": i,
-             "seeds": speed_seeds} for i in inertial]
+    for c in speed_cells or [max(cells)]:
+        out += [{"name": f"cell-{c:g}um-I{i:g}", "cell_um": c, "inertial": i,
+                 "seeds": speed_seeds} for i in inertial]
     return out
 
 
-def sweep_command(case: dict, folder: Path, seed: int, workers: int, preset: str = "sweep"
-                  ) -> list[str]:
+def sweep_command(case: dict, folder: Path, seed: int, workers: int, preset: str = "sweep",
+                  threads: int = 1) -> list[str]:
     side = f"{case['cell_um'] * 1e-6:.6g}"
     cmd = [sys.executable, "-m", "calendaring.cli", "sweep", "--preset", preset,
            "--design", "reference", "--n", "1", "--replicates", str(case["seeds"]),
-           "--role", "replicate", "--seed", str(seed), "--threads-per-run", "1",
+           "--role", "replicate", "--seed", str(seed), "--threads-per-run", str(threads),
            "--workers", str(workers), "--out", str(folder),
            "--set", f"domain.cell_x={side}", "--set", f"domain.cell_y={side}"]
     if case["inertial"] is not None:
@@ -84,7 +85,7 @@ def cmd_run(args) -> int:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    todo = cases(args.cells, args.inertial, args.seeds, args.speed_seeds)
+    todo = cases(args.cells, args.inertial, args.seeds, args.speed_seeds, args.speed_cells)
     prov_path = out / "provenance.json"
     prov = json.loads(prov_path.read_text()) if prov_path.exists() else {"invocations": []}
     prov["invocations"].append({"date": time.strftime("%Y-%m-%d %H:%M:%S"),
@@ -102,7 +103,7 @@ def cmd_run(args) -> int:
               f"-> {folder}", flush=True)
         t0 = time.perf_counter()
         rc = subprocess.run(sweep_command(case, folder, args.seed, args.workers,
-                                          args.preset)).returncode
+                                          args.preset, args.threads_per_run)).returncode
         print(f"[scale] {case['name']}: sweep exit {rc} after "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
         n = archive(folder, Path(args.archive) / case["name"])
@@ -140,6 +141,7 @@ def _runs(folder: Path) -> list[dict]:
                     "events": len(rec.breakage["parent_id"]),
                     "particles_start": int(rec.info["n_particles"]),
                     "particles_end": int(rec.series["particles"][-1]),
+                    "threads": int(rec.config.numerics.threads),
                     "wall_s": _num(walls.get(path.name, rec.info.get("wall_seconds")))})
     return out
 
@@ -210,10 +212,11 @@ def summarise(runs: list[dict], ref) -> dict:
     pair = [float(kl_divergence(hists[a], hists[b])) for i, a in enumerate(has)
             for b in has[i + 1:]]
     walls = [r["wall_s"] for r in runs if r["wall_s"]]
+    threads = sorted({int(r.get("threads", 1)) for r in runs})
     wall = float(np.mean(walls)) if walls else None
     return {
         "runs": n, "seeds": [int(r["seed"]) for r in runs],
-        "wall_s_per_run": wall,
+        "wall_s_per_run": wall, "threads_per_run": threads,
         "particles_start": float(np.mean([r["particles_start"] for r in runs])),
         "particles_end": float(np.mean([r["particles_end"] for r in runs])),
         "events_mean": float(np.mean([r["events"] for r in runs])),
@@ -225,14 +228,16 @@ def summarise(runs: list[dict], ref) -> dict:
 
 
 def bias(case: dict, base: dict) -> dict:
-    """Mean-curve and histogram differences of ``case`` against ``base`` (the largest cell
-    at the sweep speed): z = |mean difference| / combined standard error per depth."""
+    """Mean-curve and histogram differences of ``case`` against ``base``: z = |mean
+    difference| / combined standard error per depth where both have two runs or more, else
+    against the base's seed standard deviation alone (one run's difference in base sds)."""
     from calendaring.dataset import kl_divergence
 
     out = {}
     a, b = case["_curves"], base["_curves"]
-    if len(a) > 1 and len(b) > 1:
-        se = np.sqrt(a.var(axis=0, ddof=1) / len(a) + b.var(axis=0, ddof=1) / len(b))
+    if len(b) > 1:
+        va = a.var(axis=0, ddof=1) / len(a) if len(a) > 1 else b.var(axis=0, ddof=1)
+        se = np.sqrt(va + b.var(axis=0, ddof=1) / len(b))
         z = np.abs(a.mean(axis=0) - b.mean(axis=0)) / np.where(se > 0, se, np.inf)
         out["pressure_z_max"] = float(z.max())
         out["pressure_z_mean"] = float(z.mean())
@@ -245,8 +250,8 @@ def bias(case: dict, base: dict) -> dict:
 
 def markdown(rows: list[dict]) -> str:
     head = ("| case | runs | wall s/run | particles | events | P 5 / 10 / 15 / 19.5 um [MPa] "
-            "| var (normalised) | KL pairwise | var x CPU s | bias z max | KL vs largest |")
-    lines = [head, "|" + "---|" * 11]
+            "| var (normalised) | KL pairwise | var x CPU s | against | bias z max | KL pooled |")
+    lines = [head, "|" + "---|" * 12]
     for r in rows:
         s = r["summary"]
 
@@ -255,12 +260,15 @@ def markdown(rows: list[dict]) -> str:
         p = " / ".join(f"{v['mean_MPa']:.1f} +- {f(v['sd_MPa'], '.1f')}"
                        for v in s["pressure"].values())
         b = r.get("bias", {})
+        t = s.get("threads_per_run", [1])
+        thr = "" if t == [1] else f" ({'/'.join(map(str, t))} threads)"
         lines.append(
-            f"| {r['name']} | {s['runs']} | {f(s['wall_s_per_run'], '.0f')} | "
+            f"| {r['name']} | {s['runs']} | {f(s['wall_s_per_run'], '.0f')}{thr} | "
             f"{s['particles_start']:.0f} -> {s['particles_end']:.0f} | "
             f"{s['events_mean']:.0f} +- {f(s['events_sd'], '.0f')} | {p} | "
             f"{f(s['pressure_var_normalised'], '.2e')} | {f(s['kl_pairwise'], '.3f')} | "
-            f"{f(s['variance_x_cpu_s'], '.3g')} | {f(b.get('pressure_z_max'), '.2f')} | "
+            f"{f(s['variance_x_cpu_s'], '.3g')} | {b.get('against', '-')} | "
+            f"{f(b.get('pressure_z_max'), '.2f')} | "
             f"{f(b.get('kl_pooled_vs_base'), '.3f')} |")
     return "\n".join(lines) + "\n"
 
@@ -272,7 +280,8 @@ def cmd_report(args) -> int:
     ref = read_dataset(args.reference)
     out = Path(args.out)
     rows = []
-    for case in cases(args.cells, args.inertial, args.seeds, args.speed_seeds):
+    for case in cases(args.cells, args.inertial, args.seeds, args.speed_seeds,
+                      args.speed_cells):
         runs = pooled(out / case["name"], Path(args.archive) / case["name"])
         if runs:
             rows.append({**case, "summary": summarise(runs, ref)})
@@ -281,9 +290,13 @@ def cmd_report(args) -> int:
         return 2
     sweep_speed = [r for r in rows if r["inertial"] is None]
     base = max(sweep_speed, key=lambda r: r["cell_um"]) if sweep_speed else None
+    by_cell = {r["cell_um"]: r for r in sweep_speed}
     for r in rows:
-        if base is not None and r is not base:
-            r["bias"] = bias(r["summary"], base["summary"])
+        # a cell against the largest; a plate speed against its own cell at the sweep speed
+        ref_row = base if r["inertial"] is None else by_cell.get(r["cell_um"])
+        if ref_row is not None and r is not ref_row:
+            r["bias"] = {"against": ref_row["name"],
+                         **bias(r["summary"], ref_row["summary"])}
     for r in rows:
         for k in ("_curves", "_hist"):
             r["summary"].pop(k)
@@ -313,11 +326,15 @@ def main(argv=None) -> int:
         p.add_argument("--seeds", type=int, default=3, help="seeds per cell")
         p.add_argument("--speed-seeds", type=int, default=2,
                        help="seeds per extra plate speed")
+        p.add_argument("--speed-cells", type=float, nargs="*",
+                       help="cells [um] run at the extra plate speeds (default: the largest)")
         p.add_argument("--archive", default=str(RESULTS / "scale_runs"),
                        help="folder of the compact per-run archive (kept in the repository)")
     run = sub.choices["run"]
     run.add_argument("--seed", type=int, default=0, help="first seed")
     run.add_argument("--workers", type=int, default=2)
+    run.add_argument("--threads-per-run", type=int, default=1,
+                     help="CPU threads of each run (the report lists them per case)")
     run.add_argument("--preset", default="sweep",
                      help="preset of the runs (another one only to try the script out)")
     rep = sub.choices["report"]
