@@ -20,14 +20,16 @@ from pathlib import Path
 
 from calendaring.errors import ConfigError
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT = 0, 1, 2
+from calendaring.cli_contract import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    EXIT_UNSTABLE,
+    ContractParser,
+    output_path,
+    run_cli,
+)
 
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # argparse exits 2 too; one message style
-        self.print_usage(sys.stderr)
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(EXIT_BAD_INPUT)
+_Parser = ContractParser
 
 
 def parse_power_of_two(text: str) -> int:
@@ -127,9 +129,7 @@ def _out_dir(arg: str | None, src: str, suffix: str) -> Path:
     else:
         p = Path(src)
         out = p.with_name(f"{p.stem}_{suffix}")
-    if out.exists() and not out.is_dir():
-        raise ConfigError("--out-dir", str(out), "a folder (a file of that name exists)")
-    return out
+    return output_path(out, "--out-dir", folder=True)
 
 
 def cmd_sobol(args) -> int:
@@ -297,7 +297,7 @@ def cmd_compare(args) -> int:
         print(f"R0/R1 identical up to depth {d['identical_until_depth_m']} m; first breakage "
               f"at {d['first_breakage_depth_m']} m")
     print(f"wrote {out / 'compare.json'}")
-    return EXIT_ERROR if rep["failures"] else EXIT_OK
+    return EXIT_UNSTABLE if rep["failures"] else EXIT_OK  # 3: some runs stopped (listed)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -308,27 +308,20 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
     handler = {"sobol": cmd_sobol, "trends": cmd_trends, "microstructure": cmd_microstructure,
                "compare": cmd_compare}[args.command]
+    from calendaring._version import __version__
     from calendaring.dataset import DatasetError
     from calendaring.runfile import RunFileError
 
-    bad: tuple[type[BaseException], ...] = (ConfigError, DatasetError, RunFileError)
+    from analysis.render import RenderError
+
+    bad: tuple[type[BaseException], ...] = (DatasetError, RunFileError, RenderError)
     try:
         from surrogate.checkpoint import CheckpointError
 
         bad = (*bad, CheckpointError)
     except ImportError:
         pass
-    try:
-        return handler(args)
-    except bad as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return EXIT_ERROR
-    except Exception as err:
-        print(f"error ({type(err).__name__}): {err}", file=sys.stderr)
-        return EXIT_ERROR
+    return run_cli("analysis", lambda: handler(args), bad, __version__)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
 """Command line: ``calendaring run | inspect | plot | export``.
 
-Exit codes: 0 success, 2 bad input (nothing written), 3 the simulation stopped on a guard
-(diagnostic printed; the last checkpoint is kept), 1 anything else.
+Exit codes (the contract of :mod:`calendaring.cli_contract`, shared by the four programs):
+0 success, 2 bad input (one line naming the key, the value and what is allowed; nothing
+written), 3 the simulation stopped on a guard (diagnostic printed; the last checkpoint is
+kept), 1 an internal error (a bug: traceback and a line saying so), 130 interrupted.
 
     calendaring run --preset quick --out runs/quick.h5
     calendaring run my.toml --set protocol.stroke=10e-6 --out runs/a.h5 --seed 3
@@ -26,22 +28,29 @@ import numpy as np
 from calendaring.config import (
     ARCHES,
     PRESETS,
+    SEED_MAX,
+    THREADS_MAX,
     load_config,
     load_preset,
     parse_override,
     with_overrides,
 )
-from calendaring.errors import ConfigError, SimulationError
+from calendaring.cli_contract import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    ContractParser,
+    input_file,
+    input_folder,
+    integer,
+    output_path,
+    real,
+    run_cli,
+)
+from calendaring.errors import ConfigError
+from calendaring.preflight import DEFAULT_MAX_HOURS
 from calendaring.units import to_mpa, to_um
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT, EXIT_UNSTABLE = 0, 1, 2, 3
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # argparse already exits 2; keep one message style
-        self.print_usage(sys.stderr)
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(EXIT_BAD_INPUT)
+_Parser = ContractParser
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -51,7 +60,11 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a calendering simulation into an HDF5 run file")
     _config_args(r)
     r.add_argument("--out", required=True, help="run file to write (.h5)")
-    r.add_argument("--resume", action="store_true", help="continue from <out>.ckpt")
+    r.add_argument("--resume", action="store_true",
+                   help="continue from <out>.ckpt (or <out>.ckpt.prev if that one is cut "
+                        "short or corrupt)")
+    r.add_argument("--restart-if-unusable", action="store_true",
+                   help="with --resume: start afresh when no checkpoint is usable (sweeps)")
     r.add_argument("--no-breakage", action="store_true",
                    help="the no-breakage control (paper R0): breakage.enabled = false, "
                         "same packing and seed")
@@ -64,7 +77,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out-dir", help="folder for the PNGs (default: next to the run file)")
     e = sub.add_parser("export", help="write one snapshot as VTK, LAMMPS data or CSV")
     e.add_argument("run_file")
-    e.add_argument("--snapshot", type=int, required=True, help="snapshot index k")
+    e.add_argument("--snapshot", type=integer(0), required=True, help="snapshot index k")
     fmt = e.add_mutually_exclusive_group(required=True)
     fmt.add_argument("--vtk", action="store_true", help="ParaView .vtp (needs pyvista)")
     fmt.add_argument("--lammps", action="store_true", help="LAMMPS data, atom_style granular")
@@ -85,20 +98,25 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a config value for every run; repeatable")
     s.add_argument("--design", default="lhs",
                    help="lhs | sobol | reference | centre | DESIGN.csv (default lhs)")
-    s.add_argument("--n", type=int, default=1, help="design points (default 1)")
-    s.add_argument("--seed", type=int, default=0,
+    s.add_argument("--n", type=integer(1, 10**7), default=1, help="design points (default 1)")
+    s.add_argument("--seed", type=integer(0, SEED_MAX), default=0,
                    help="run seed (bed and fracture energies); replicates use seed+1, ...")
-    s.add_argument("--design-seed", type=int, help="seed of the design (default --seed)")
-    s.add_argument("--replicates", type=int, default=1, help="seeds per design point")
+    s.add_argument("--design-seed", type=integer(0, SEED_MAX),
+                   help="seed of the design (default --seed)")
+    s.add_argument("--replicates", type=integer(1, 10**6), default=1,
+                   help="seeds per design point")
     s.add_argument("--role", default="train", help="train | replicate | holdout")
     s.add_argument("--out", required=True, help="sweep folder (created; reused to resume)")
     s.add_argument("--scheduler", help="address of a running Dask scheduler "
                                        "(default: a LocalCluster on this machine)")
-    s.add_argument("--workers", type=int, default=0,
+    s.add_argument("--workers", type=integer(0, THREADS_MAX), default=0,
                    help="LocalCluster workers (default: cores / threads per run)")
-    s.add_argument("--threads-per-run", type=int, default=1, help="CPU threads of each run")
-    s.add_argument("--max-attempts", type=int, default=2, help="tries per run (default 2)")
-    s.add_argument("--timeout", type=float, help="seconds per run attempt (default none)")
+    s.add_argument("--threads-per-run", type=integer(1, THREADS_MAX), default=1,
+                   help="CPU threads of each run")
+    s.add_argument("--max-attempts", type=integer(1, 100), default=2,
+                   help="tries per run (default 2)")
+    s.add_argument("--timeout", type=real(0, lo_open=True, unit="s"),
+                   help="seconds per run attempt (default none)")
     s.add_argument("--gpu", action="store_true",
                    help="each run needs one 'GPU' worker resource (workers started with "
                         "--resources GPU=1); set numerics.arch with --set")
@@ -107,15 +125,21 @@ def _parser() -> argparse.ArgumentParser:
                                        "dataset file")
     d.add_argument("runs", help="sweep folder (or a folder of run files)")
     d.add_argument("--out", required=True, help="dataset file to write (.h5)")
-    d.add_argument("--points", type=int, default=196, help="pressure points (default 196)")
-    d.add_argument("--savgol-window", type=int, default=17, help="Savitzky-Golay window")
-    d.add_argument("--savgol-order", type=int, default=3, help="Savitzky-Golay order")
-    d.add_argument("--bins", type=int, default=30, help="histogram bins per axis")
+    d.add_argument("--points", type=integer(2, 10**6), default=196,
+                   help="pressure points (default 196)")
+    d.add_argument("--savgol-window", type=integer(1, 10**6), default=17,
+                   help="Savitzky-Golay window")
+    d.add_argument("--savgol-order", type=integer(0, 100), default=3,
+                   help="Savitzky-Golay order")
+    d.add_argument("--bins", type=integer(2, 10**4), default=30,
+                   help="histogram bins per axis")
     d.add_argument("--load-scale", choices=("log", "linear"), default="log",
                    help="peak-load axis of the histogram (default log)")
-    d.add_argument("--load-range", type=float, nargs=2, metavar=("MIN_N", "MAX_N"),
+    d.add_argument("--load-range", type=real(0, lo_open=True, unit="N"), nargs=2,
+                   metavar=("MIN_N", "MAX_N"),
                    help="fixed peak-load edges [N] (default: the events' range)")
-    d.add_argument("--diameter-range", type=float, nargs=2, metavar=("MIN_M", "MAX_M"),
+    d.add_argument("--diameter-range", type=real(0, lo_open=True, unit="m"), nargs=2,
+                   metavar=("MIN_M", "MAX_M"),
                    help="fixed diameter edges [m] (default: the events' range)")
     d.add_argument("--overwrite", action="store_true", help="replace an existing file")
     d.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -130,21 +154,26 @@ def _sweep_doc() -> str:
 
 def _config_args(r) -> None:
     r.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
+    r.add_argument("--max-hours", type=real(0, lo_open=True, unit="h"),
+                   default=DEFAULT_MAX_HOURS, help="refuse a run whose estimated wall time "
+                   f"is longer (default {DEFAULT_MAX_HOURS:g} h; see calendaring.preflight)")
     r.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value (dotted key, TOML value); repeatable")
     r.add_argument("--arch", choices=[a for a in ARCHES if a != "auto"], help="Taichi backend")
-    r.add_argument("--seed", type=int, help="random seed (numerics.seed)")
-    r.add_argument("--threads", type=int, help="CPU threads (numerics.threads, 0 = all)")
+    r.add_argument("--seed", type=integer(0, SEED_MAX), help="random seed (numerics.seed)")
+    r.add_argument("--threads", type=integer(0, THREADS_MAX),
+                   help="CPU threads (numerics.threads, 0 = all)")
     r.add_argument("--quiet", action="store_true", help="no progress lines")
-    r.set_defaults(no_breakage=False, resume=False)
+    r.set_defaults(no_breakage=False, resume=False, restart_if_unusable=False)
 
 
 def _run_config(args):
     if bool(args.config) == bool(args.preset):
         raise ConfigError("config", args.config or args.preset,
                           "exactly one of CONFIG.toml or --preset NAME")
-    cfg = load_preset(args.preset) if args.preset else load_config(Path(args.config))
+    cfg = (load_preset(args.preset) if args.preset
+           else load_config(input_file(args.config, "config", (".toml",))))
     overrides = dict(parse_override(s) for s in args.set)
     if args.arch:
         overrides["numerics.arch"] = args.arch
@@ -159,32 +188,35 @@ def _run_config(args):
     return cfg.check_run()
 
 
+def _preflight(cfg, args) -> None:
+    """Refuse a run that would not fit the machine; print the estimate (stderr)."""
+    from calendaring.preflight import check
+
+    est = check(cfg, max_hours=args.max_hours)
+    if not args.quiet:
+        print(est.line(), file=sys.stderr, flush=True)
+
+
 def cmd_run(args) -> int:
     cfg = _run_config(args)
-    out = Path(args.out)
-    if out.suffix.lower() not in (".h5", ".hdf5"):
-        raise ConfigError("--out", str(out), "a path ending in .h5 or .hdf5")
-    if out.is_dir():
-        raise ConfigError("--out", str(out), "a file path, not a folder")
-    if out.exists() and not (args.overwrite or args.resume):
-        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    out = output_path(args.out, "--out", suffixes=(".h5", ".hdf5"),
+                      overwrite=args.overwrite or args.resume)
+    _preflight(cfg, args)
     from calendaring.run import CalenderRun
 
     runner = CalenderRun(cfg, out, progress=not args.quiet, preset=args.preset or "")
-    if args.resume and not runner.checkpoint.exists():
+    if args.resume and not runner.checkpoints():
         raise ConfigError("--resume", str(runner.checkpoint), "an existing checkpoint file")
-    path = runner.execute(resume=args.resume)
+    resume = ("auto" if args.restart_if_unusable else True) if args.resume else False
+    path = runner.execute(resume=resume)
     print(f"wrote {path}")
     return EXIT_OK
 
 
 def cmd_pack(args) -> int:
     cfg = _run_config(args)
-    out = Path(args.out)
-    if out.suffix.lower() != ".csv":
-        raise ConfigError("--out", str(out), "a path ending in .csv")
-    if out.exists() and not args.overwrite:
-        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    out = output_path(args.out, "--out", suffixes=(".csv",), overwrite=args.overwrite)
+    _preflight(cfg, args)
     from calendaring.run import build_packing
 
     print(f"wrote {build_packing(cfg, out, progress=not args.quiet)}")
@@ -197,18 +229,9 @@ def cmd_sweep(args) -> int:
     if bool(args.config) == bool(args.preset):
         raise ConfigError("config", args.config or args.preset,
                           "exactly one of CONFIG.toml or --preset NAME")
-    if args.config and not Path(args.config).is_file():
-        raise ConfigError("config", args.config, "an existing TOML file")
-    for key, v, lo in (("--workers", args.workers, 0), ("--threads-per-run",
-                       args.threads_per_run, 1), ("--max-attempts", args.max_attempts, 1),
-                       ("--replicates", args.replicates, 1)):
-        if v < lo:
-            raise ConfigError(key, v, f">= {lo}")
-    if args.timeout is not None and args.timeout <= 0:
-        raise ConfigError("--timeout", args.timeout, "> 0 s")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError("--out", str(out), "a folder (it is a file)")
+    if args.config:
+        input_file(args.config, "config", (".toml",))
+    out = output_path(args.out, "--out", folder=True)
     source = f"preset:{args.preset}" if args.preset else str(Path(args.config).resolve())
     opt = SweepOptions(source=source, out=out, design=args.design, n=args.n, seed=args.seed,
                        design_seed=args.design_seed, replicates=args.replicates,
@@ -229,11 +252,8 @@ def cmd_sweep(args) -> int:
 def cmd_dataset(args) -> int:
     from calendaring.dataset import build_dataset, write_dataset
 
-    out = Path(args.out)
-    if out.suffix.lower() not in (".h5", ".hdf5"):
-        raise ConfigError("--out", str(out), "a path ending in .h5 or .hdf5")
-    if out.exists() and not args.overwrite:
-        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    input_folder(args.runs, "RUNS")
+    out = output_path(args.out, "--out", suffixes=(".h5", ".hdf5"), overwrite=args.overwrite)
     ds = build_dataset(args.runs, n_points=args.points, savgol_window=args.savgol_window,
                        savgol_order=args.savgol_order, bins=args.bins,
                        load_scale=args.load_scale,
@@ -336,6 +356,7 @@ def cmd_plot(args) -> int:
 
     rec = read_run(args.run_file)
     folder = Path(args.out_dir) if args.out_dir else rec.path.parent
+    output_path(folder, "--out-dir", folder=True)
     folder.mkdir(parents=True, exist_ok=True)
     stem = rec.path.stem
     paths = [plot_pressure(rec, folder / f"{stem}_pressure.png"),
@@ -366,6 +387,7 @@ def cmd_export(args) -> int:
     ext = ".vtp" if args.vtk else ".data" if args.lammps else ".csv"
     out = Path(args.out) if args.out else rec.path.with_name(
         f"{rec.path.stem}_snap{args.snapshot}{ext}")
+    output_path(out, "--out", suffixes=(ext,), overwrite=True)
     if args.vtk:
         paths = write_vtk(out, pk, point_data={"normal_force": sn.normal_force,
                                                "velocity": sn.velocity,
@@ -380,8 +402,13 @@ def cmd_export(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``calendaring`` command."""
-    args = _parser().parse_args(argv)
+    """Entry point of the ``calendaring`` command (exit codes: :mod:`calendaring.cli_contract`)."""
+    from calendaring._version import __version__
+
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
     handler = {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
                "export": cmd_export, "pack": cmd_pack, "sweep": cmd_sweep,
                "dataset": cmd_dataset}[args.command]
@@ -389,14 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     from calendaring.packing import PackingError
     from calendaring.runfile import RunFileError
 
-    try:
-        return handler(args)
-    except (ConfigError, RunFileError, PackingError, DatasetError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except SimulationError as err:
-        print(f"simulation stopped: {err}", file=sys.stderr)
-        return EXIT_UNSTABLE
+    return run_cli("calendaring", lambda: handler(args),
+                   (RunFileError, PackingError, DatasetError), __version__)
 
 
 if __name__ == "__main__":

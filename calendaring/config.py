@@ -37,6 +37,12 @@ ARCHES = ("cpu", "cuda", "auto")
 PRECISIONS = ("f64",)
 
 
+FLOAT_LIMIT = 1e30  # no SI quantity of a calendering run comes near: beyond it is a typo
+INT_LIMIT = 2**62  # every integer key fits a 64-bit device integer with room to add
+SEED_MAX = 2**32 - 1  # numerics.seed seeds NumPy's generators: an unsigned 32-bit value
+THREADS_MAX = 4096
+
+
 def _check(key: str, value: float, ok: bool, allowed: str) -> None:
     if not ok or (isinstance(value, float) and math.isnan(value)):
         raise ConfigError(key, value, allowed)
@@ -199,7 +205,9 @@ class NumericsConfig:
         _check("arch", self.arch, self.arch in ARCHES, f"one of {ARCHES}")
         _check("precision", self.precision, self.precision in PRECISIONS,
                f"one of {PRECISIONS} (f32 needs an f64 parity test first)")
-        _check("threads", self.threads, self.threads >= 0, ">= 0 (0 = all cores)")
+        _check("threads", self.threads, 0 <= self.threads <= THREADS_MAX,
+               f"in [0, {THREADS_MAX}] (0 = all cores)")
+        _check("seed", self.seed, 0 <= self.seed <= SEED_MAX, f"an integer in [0, {SEED_MAX}]")
         f = self.timestep_fraction
         _check("timestep_fraction", f, 0.0 < f <= 0.3, "in (0, 0.3]")
         s = self.density_scaling
@@ -603,10 +611,14 @@ def _convert(tp: Any, value: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(key, value, "a number")
+        if not math.isfinite(value) or abs(value) > FLOAT_LIMIT:
+            raise ConfigError(key, value, f"a finite number of magnitude <= {FLOAT_LIMIT:g}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(key, value, "an integer")
+        if not -INT_LIMIT <= value <= INT_LIMIT:
+            raise ConfigError(key, value, f"an integer in [-{INT_LIMIT}, {INT_LIMIT}]")
         return value
     if tp is bool:
         if not isinstance(value, bool):

@@ -159,12 +159,17 @@ class CalenderRun:
         self._phase0: dict = {}  # phase records of the run before this process
 
     # ------------------------------------------------------------------ entry point
-    def execute(self, resume: bool = False) -> Path:
-        """Run to the end (or continue from the checkpoint) and write the run file."""
+    def execute(self, resume: bool | str = False) -> Path:
+        """Run to the end (or continue from the checkpoint) and write the run file.
+
+        ``resume``: False starts afresh; True continues from the newest usable checkpoint
+        (``<out>.ckpt``, else the one before it, ``<out>.ckpt.prev``) and raises if none is
+        usable; ``"auto"`` does the same but starts afresh when none is (sweeps)."""
         t0 = time.perf_counter()
         try:
-            if resume:
-                self._resume()
+            if resume and not (resume == "auto" and not self.checkpoints()):
+                if not self._resume(strict=resume != "auto"):
+                    self._start()
             else:
                 self._start()
             self._phase0 = {k: dict(v) for k, v in self.rs.info.get("phases", {}).items()}
@@ -175,9 +180,14 @@ class CalenderRun:
                 self._run_stage(t0, wall0)
             self.rs.wall = wall0 + time.perf_counter() - t0
             self.rs.info["phases"] = self._phase_totals()
-            path = self._write()
-            if self.checkpoint.exists():
-                self.checkpoint.unlink()
+            try:
+                path = self._write()
+            except OSError as err:
+                raise OSError(err.errno, f"{err.strerror or err} while writing the run file; "
+                              "the last checkpoint is kept: free space and rerun with "
+                              "--resume", str(self.out)) from err
+            for ck in (self.checkpoint, runfile.previous_checkpoint(self.checkpoint)):
+                ck.unlink(missing_ok=True)
             return path
         finally:
             if self.sim is not None:
@@ -243,24 +253,52 @@ class CalenderRun:
         rs.stage = STAGES.index(first)
         self._enter_stage()
 
-    def _resume(self) -> None:
+    def checkpoints(self) -> list[Path]:
+        """The checkpoint files on disk, newest first."""
+        return [p for p in (self.checkpoint, runfile.previous_checkpoint(self.checkpoint))
+                if p.exists()]
+
+    def _resume(self, strict: bool = True) -> bool:
+        """Load the newest usable checkpoint; a cut-short, corrupt or foreign one is
+        refused with a line on stderr and the one before it tried. Returns False (not
+        strict) or raises (strict) when none is usable."""
         from calendaring.simulation import Simulation
 
-        if not self.checkpoint.exists():
-            raise ConfigError("--resume", str(self.checkpoint), "an existing checkpoint file")
-        ck = runfile.read_checkpoint(self.checkpoint)
-        if ck["config_hash"] != config_hash(self.cfg):
-            raise ConfigError("--resume", str(self.checkpoint),
-                              "a checkpoint written by the same configuration "
-                              f"(hash {ck['config_hash'][:12]} != {config_hash(self.cfg)[:12]})")
+        refused = []
+        ck = None
+        for path in self.checkpoints():
+            try:
+                ck = runfile.read_checkpoint(path)
+            except runfile.RunFileError as err:
+                refused.append(f"{path}: {err}")
+                _log(f"checkpoint refused: {err}")
+                continue
+            if ck["config_hash"] != config_hash(self.cfg):
+                why = (f"{path}: written by another configuration (hash "
+                       f"{ck['config_hash'][:12]} != {config_hash(self.cfg)[:12]})")
+                refused.append(why)
+                _log(f"checkpoint refused: {why}")
+                ck = None
+                continue
+            if path != self.checkpoint:
+                _log(f"resuming from the previous checkpoint {path}")
+            break
+        if ck is None:
+            if strict:
+                raise ConfigError("--resume", str(self.checkpoint),
+                                  "a usable checkpoint of this configuration ("
+                                  + ("; ".join(refused) if refused else "there is none") + ")")
+            _log("no usable checkpoint: starting afresh")
+            return False
         self.rs = ck["run"]
         self.rng.bit_generator.state = ck["rng"]
         st = ck["sim"]
         self.sim = Simulation(self.cfg, capacity=int(self.rs.info["pool_capacity"]),
                               min_radius=_min_radius(self.cfg))
         self.sim.load_state(st)
-        _log(f"resumed from {self.checkpoint} at stage {STAGES[self.rs.stage]}, "
+        _log(f"resumed from {path} at stage {STAGES[self.rs.stage]}, "
              f"step {self.sim.step_count}")
+        return True
 
     # ------------------------------------------------------------------ stages
     def _enter_stage(self) -> None:

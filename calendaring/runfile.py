@@ -149,13 +149,27 @@ class RunFileError(ValueError):
 
 
 # ---------------------------------------------------------------------- writing
-def _atomic_h5(path: Path, fill) -> Path:
+def _atomic_h5(path: Path, fill, previous: Path | None = None) -> Path:
+    """Write an HDF5 file under a temporary name, flush it to disk, then rename it to
+    ``path``; with ``previous``, the file ``path`` held is first renamed to ``previous`` (so
+    a kill at any moment leaves at least one complete file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a killed writer
+        pid = stale.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            stale.unlink(missing_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with h5py.File(tmp, "w") as f:
             fill(f)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        if previous is not None and path.exists():
+            os.replace(path, previous)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -443,9 +457,20 @@ def _get_group(g: h5py.Group) -> Any:
     return items
 
 
+def previous_checkpoint(path: str | Path) -> Path:
+    """Where :func:`write_checkpoint` keeps the checkpoint before the newest one."""
+    path = Path(path)
+    return path.with_name(path.name + ".prev")
+
+
 def write_checkpoint(path: str | Path, ck: dict) -> Path:
     """Write a checkpoint atomically: ``config``, ``config_hash``, ``run`` (RunState),
-    ``rng`` (bit-generator state) and ``sim`` (Simulation.save_state())."""
+    ``rng`` (bit-generator state) and ``sim`` (Simulation.save_state()).
+
+    The checkpoint it replaces is kept as :func:`previous_checkpoint`, so a checkpoint
+    found cut short or corrupt still leaves one to resume from. A write that fails (a full
+    disk) removes its temporary file and leaves both generations as they were; the error
+    says so."""
 
     def fill(f: h5py.File) -> None:
         f.attrs["format"] = CHECKPOINT_FORMAT
@@ -456,7 +481,23 @@ def write_checkpoint(path: str | Path, ck: dict) -> Path:
         _put(f, "rng", ck["rng"])
         _put(f, "sim", ck["sim"])
 
-    return _atomic_h5(Path(path), fill)
+    path = Path(path)
+    try:
+        return _atomic_h5(path, fill, previous=previous_checkpoint(path))
+    except OSError as err:
+        raise OSError(err.errno, f"{err.strerror or err} while writing the checkpoint; the "
+                      "checkpoints written before are intact: free space and rerun with "
+                      "--resume", str(path)) from err
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def read_checkpoint(path: str | Path) -> dict:
@@ -471,12 +512,17 @@ def read_checkpoint(path: str | Path) -> dict:
             run = _get_group(f["run"])
             out = {"config": str(f.attrs["config"]), "config_hash": str(f.attrs["config_hash"]),
                    "rng": _get_group(f["rng"]), "sim": _get_group(f["sim"])}
+        for key in ("series", "energy", "trace", "unload_trace", "snapshots", "energy_keys",
+                    "breakage", "fragment_diameters"):
+            run[key] = list(run.get(key) or [])
+        out["run"] = RunState(**run)
+    except RunFileError:
+        raise
     except OSError as err:
-        raise RunFileError(path, f"unreadable checkpoint ({err})") from None
-    for key in ("series", "energy", "trace", "unload_trace", "snapshots", "energy_keys",
-                "breakage", "fragment_diameters"):
-        run[key] = list(run.get(key) or [])
-    out["run"] = RunState(**run)
+        raise RunFileError(path, f"unreadable checkpoint, cut short or corrupt ({err})") \
+            from None
+    except (KeyError, ValueError, TypeError, UnicodeDecodeError) as err:
+        raise RunFileError(path, f"corrupt checkpoint ({type(err).__name__}: {err})") from None
     sim = out["sim"]
     if sim.get("bonds") is None:
         sim["bonds"] = None

@@ -246,6 +246,7 @@ def run_task(folder: str, entry: dict, packing: str, threads: int,
     if ok:
         return {"status": "done", "wall_time": 0.0, "error": "", "reused": True}
     ckpt = out.with_name(out.name + ".ckpt")
+    prev = ckpt.with_name(ckpt.name + ".prev")
     sets = [format_override(f"breakage.{k}", float(v)) for k, v in entry["params"].items()]
     sets += [format_override("breakage.enabled", True),
              format_override("electrode.packing", packing)]
@@ -254,16 +255,16 @@ def run_task(folder: str, entry: dict, packing: str, threads: int,
         args += ["--set", s]
     args += ["--seed", str(entry["seed"]), "--threads", str(threads), "--quiet", "--overwrite",
              "--out", str(out)]
-    if ckpt.exists():
-        args.append("--resume")
+    if ckpt.exists() or prev.exists():  # the run refuses a bad one and starts afresh
+        args += ["--resume", "--restart-if-unusable"]
     log = folder / "logs" / f"{entry['run_id']}.log"
     rc, wall = _subprocess(args, log, timeout)
-    if rc == 2 and ckpt.exists():  # an unusable checkpoint: start afresh next attempt
-        ckpt.unlink(missing_ok=True)
     ok, why = run_file_ok(out)
     if rc == 0 and ok:
         return {"status": "done", "wall_time": wall, "error": "", "reused": False}
-    kind = {3: "unstable (guard stop)", 2: "bad input", -9: "timeout"}.get(rc, f"exit {rc}")
+    kind = {3: "unstable (guard stop)", 2: "bad input or file-system error",
+            1: "internal error (a bug)",
+            -9: "killed (SIGKILL: the timeout or from outside)"}.get(rc, f"exit {rc}")
     return {"status": "failed", "wall_time": wall, "reused": False,
             "error": f"{kind}: {_tail(log) or why}"}
 
@@ -390,17 +391,21 @@ def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list
                     opt.threads_per_run, key=f"pack-{e.packing}", pure=False,
                     resources=resources)
         futures = {}
-        for e in todo:
+
+        def submit(e: RunEntry):
             f = client.submit(task, str(out), asdict(e), packs[e.packing], opt.threads_per_run,
-                              opt.timeout, key=f"run-{e.run_id}", pure=False,
-                              resources=resources)
+                              opt.timeout, key=f"run-{e.run_id}-a{e.attempts + 1}",
+                              pure=False, resources=resources)
             futures[f] = e.run_id
             e.status = "running"
+            return f
+
+        pending = as_completed([submit(e) for e in todo])
         write_manifest(out, runs)
         bar = Progress("sweep", len(todo), opt.progress, every=0.0, unit="runs")
         bar.update(0)
         done = 0
-        for f in as_completed(futures):
+        for f in pending:
             e = runs[futures[f]]
             try:
                 res = f.result()
@@ -411,7 +416,8 @@ def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list
                 e.attempts += 1
             e.status, e.wall_time, e.error = res["status"], res["wall_time"], res["error"]
             e.finished = _now()
-            e.history.append([e.status, e.wall_time, e.error[-500:]])
+            err = e.error if len(e.error) <= 500 else f"{e.error[:200]} [...] {e.error[-300:]}"
+            e.history.append([e.status, e.wall_time, err])  # the kind of failure, the tail
             write_manifest(out, runs)
             done += 1
             wall = f"{e.wall_time:.0f} s" if e.wall_time is not None else "-"
@@ -419,6 +425,13 @@ def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list
             if e.status == "failed":
                 _log(f"{e.run_id} failed (attempt {e.attempts}): "
                      f"{e.error.splitlines()[0] if e.error else ''}")
+                # a killed or crashed run resumes from its checkpoint at once; a guard stop
+                # is deterministic, so it waits for a later invocation (if any attempts left)
+                if e.attempts < opt.max_attempts and not e.error.startswith("unstable"):
+                    _log(f"{e.run_id}: retrying (attempt {e.attempts + 1} of "
+                         f"{opt.max_attempts})")
+                    pending.add(submit(e))
+                    done -= 1
     finally:
         client.close()
         if cluster is not None:

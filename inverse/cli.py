@@ -22,14 +22,15 @@ from pathlib import Path
 
 from calendaring.errors import ConfigError
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT = 0, 1, 2
+from calendaring.cli_contract import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    ContractParser,
+    output_path,
+    run_cli,
+)
 
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):
-        self.print_usage(sys.stderr)
-        print(f"error: {message}", file=sys.stderr)
-        sys.exit(EXIT_BAD_INPUT)
+_Parser = ContractParser
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -154,9 +155,7 @@ def cmd_calibrate(args) -> int:
     from inverse.report import format_table4, write_json
     from inverse.targets import load_target
 
-    out = Path(args.out)
-    if out.suffix.lower() != ".json":
-        raise ConfigError("--out", str(out), "a path ending in .json")
+    out = output_path(args.out, "--out", suffixes=(".json",), overwrite=True)
     fix = parse_fix(args.fix)
     restarts = args.restarts or (DEFAULT_MULTISTART if args.multistart else DEFAULT_RESTARTS)
     opt = OptimiserConfig(iterations=args.iterations, restarts=restarts, seed=args.seed,
@@ -206,6 +205,8 @@ def cmd_calibrate(args) -> int:
 def cmd_verify(args) -> int:
     from inverse.verify import verify
 
+    if args.out_dir:
+        output_path(args.out_dir, "--out-dir", folder=True)
     rep = verify(args.result, preset=args.preset, seeds=args.seeds, draws=args.draws,
                  out_dir=args.out_dir, first_seed=args.first_seed)
     e = rep["optimum_mean_error"]
@@ -228,6 +229,7 @@ def cmd_validate(args) -> int:
     from inverse.posterior import PosteriorConfig
     from inverse.validate import validate_to_dir
 
+    output_path(args.out, "--out", folder=True)
     model = _load_model(args.model)
     ds = read_dataset(args.dataset)
     fix = parse_fix(args.fix)
@@ -252,13 +254,18 @@ def cmd_validate(args) -> int:
 
 def main(argv=None) -> int:
     """Entry point of the ``inverse`` console script; returns the exit code."""
-    args = _parser().parse_args(argv)
+    from calendaring._version import __version__
+
+    try:
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
     handler = {"calibrate": cmd_calibrate, "verify": cmd_verify,
                "validate": cmd_validate}[args.command]
     if getattr(args, "threads", None) is not None:
         if args.threads < 1:
-            print(f"error: --threads = {args.threads} is invalid: allowed an integer >= 1",
-                  file=sys.stderr)
+            print(f"inverse: error: --threads = {args.threads} is invalid: allowed an integer "
+                  ">= 1", file=sys.stderr)
             return EXIT_BAD_INPUT
         import torch
 
@@ -266,21 +273,14 @@ def main(argv=None) -> int:
     from calendaring.dataset import DatasetError
     from calendaring.runfile import RunFileError
 
-    bad = [ConfigError, DatasetError, RunFileError]
+    bad = [DatasetError, RunFileError]
     try:
         from surrogate.checkpoint import CheckpointError
 
         bad.append(CheckpointError)
     except ImportError:  # surrogate not installed: no checkpoint errors to catch
         pass
-    try:
-        return handler(args)
-    except tuple(bad) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Exception as err:  # noqa: BLE001 - the CLI reports and exits 1
-        print(f"error: {type(err).__name__}: {err}", file=sys.stderr)
-        return EXIT_ERROR
+    return run_cli("inverse", lambda: handler(args), tuple(bad), __version__)
 
 
 if __name__ == "__main__":

@@ -256,12 +256,24 @@ def read_curve_csv(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     path = Path(path)
     if not path.is_file():
         raise ConfigError("--target", str(path), "an existing CSV or run file")
-    with open(path, newline="") as f:
-        rows = [r for r in csv.reader(line for line in f
-                                      if line.strip() and not line.lstrip().startswith("#"))]
+    try:  # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the header
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            rows = [r for r in csv.reader(line for line in f
+                                          if line.strip() and not line.lstrip().startswith("#"))]
+    except UnicodeDecodeError as err:
+        raise ConfigError("--target", str(path), f"a UTF-8 text CSV (byte {err.start} is "
+                          f"{err.object[err.start:err.start + 1]!r})") from None
+    except csv.Error as err:
+        raise ConfigError("--target", str(path), f"a readable CSV ({err})") from None
     if not rows:
         raise ConfigError(f"{path}: header", "empty file", _HEADER)
     header, body = rows[0], rows[1:]
+    if len(header) == 1:
+        for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
+            if sep in header[0]:
+                raise ConfigError(f"{path}: header", header[0],
+                                  f"comma-separated columns (this file uses {name}): "
+                                  f"{_HEADER}")
     cols: dict[str, tuple[int, float]] = {}
     for i, name in enumerate(header):
         parsed = _parse_column(name)

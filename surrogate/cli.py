@@ -21,7 +21,13 @@ from calendaring.dataset import DatasetError
 from calendaring.errors import ConfigError
 from surrogate.checkpoint import CheckpointError, json_default
 
-EXIT_OK, EXIT_ERROR, EXIT_BAD_INPUT = 0, 1, 2
+from calendaring.cli_contract import (
+    EXIT_BAD_INPUT,
+    EXIT_OK,
+    ContractParser,
+    output_path,
+    run_cli,
+)
 
 
 def _set_threads(n: int | None) -> None:
@@ -41,9 +47,7 @@ def cmd_train(args) -> int:
     from surrogate.model import ModelConfig
     from surrogate.train import TrainConfig
 
-    out = Path(args.out)
-    if out.exists() and not args.overwrite:
-        raise ConfigError("--out", str(out), "a new file (it exists; pass --overwrite)")
+    out = output_path(args.out, "--out", overwrite=args.overwrite)
     if args.ensemble < 1:
         raise ConfigError("--ensemble", args.ensemble, "an integer >= 1")
     _set_threads(args.threads)
@@ -88,6 +92,7 @@ def cmd_evaluate(args) -> int:
     ds = read_dataset(args.dataset)
     out_dir = Path(args.out_dir) if args.out_dir else \
         Path(args.model).with_name(Path(args.model).stem + "_eval")
+    output_path(out_dir, "--out-dir", folder=True)
     res = evaluate(model, ds, out_dir, folds=args.folds, repeats=args.repeats,
                    epochs=args.epochs, baseline=not args.no_baseline,
                    progress=not args.quiet)
@@ -168,9 +173,9 @@ def cmd_predict(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="surrogate", description="Dual-branch MLP surrogate of "
-                                "the calendering pressure curve and breakage distribution.")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = ContractParser(prog="surrogate", description="Dual-branch MLP surrogate of "
+                       "the calendering pressure curve and breakage distribution.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=ContractParser)
 
     t = sub.add_parser("train", help="train a model or deep ensemble on a dataset file")
     t.add_argument("dataset", help="dataset file (calendaring dataset ... --out DATASET.h5)")
@@ -225,17 +230,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``surrogate`` command (exit codes: :mod:`calendaring.cli_contract`)."""
+    from calendaring._version import __version__
+
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
-    args.argv = argv
     try:
-        return args.func(args)
-    except (ConfigError, DatasetError, CheckpointError) as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except Exception as err:
-        print(f"error: {type(err).__name__}: {err}", file=sys.stderr)
-        return EXIT_ERROR
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
+        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
+    args.argv = argv
+    return run_cli("surrogate", lambda: args.func(args), (DatasetError, CheckpointError),
+                   __version__)
 
 
 if __name__ == "__main__":

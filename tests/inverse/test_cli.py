@@ -99,7 +99,7 @@ def test_bad_csv_exits_2(calibrated, capsys):
                    str(d / "nounits.csv"), "--out", str(d / "bad.json"), "--quiet"])
     assert rc == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and "depth_<m|mm|um>" in err
+    assert err.startswith("inverse: error:") and "depth_<m|mm|um>" in err
 
 
 def test_run_command_sets_every_parameter():

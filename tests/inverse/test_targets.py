@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from calendaring.dataset import centroids
 from calendaring.errors import ConfigError
@@ -154,3 +156,45 @@ def test_target_json_round_trip(model):
     np.testing.assert_array_equal(t2.valid, v)
     np.testing.assert_allclose(t2.pressure[v], 1e6)
     np.testing.assert_allclose(t2.centroids, [0.1, 8e-6])
+
+
+def test_a_byte_order_mark_is_not_part_of_the_header(tmp_path):
+    plain = _write(tmp_path / "plain.csv", "depth_um,pressure_MPa", [(0, 0), (1, 2)])
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    for a, b in zip(read_curve_csv(plain)[:2], read_curve_csv(bom)[:2], strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("content, key_part", [
+    (b"depth_um;pressure_MPa\n0;0\n1;2\n", "header"),  # a semicolon-separated file
+    (b"depth_um\tpressure_MPa\n0\t0\n1\t2\n", "header"),  # tab-separated
+    (b"depth_um,pressure_MPa\n0,0\n1\n", "row 3"),  # a column missing
+    (b"\xff\xfed\x00e\x00p\x00", "--target"),  # UTF-16
+    (b"", "header"),
+])
+def test_foreign_csv_layouts_are_rejected(tmp_path, content, key_part):
+    path = tmp_path / "x.csv"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError) as err:
+        read_curve_csv(path)
+    assert key_part in err.value.key and err.value.allowed
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.one_of(
+    st.binary(max_size=200),
+    st.lists(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                                st.text(max_size=4)), min_size=1, max_size=4),
+             max_size=6).map(lambda rows: ("depth_um,pressure_MPa\n" + "\n".join(
+                 ",".join(str(v) for v in r) for r in rows)).encode())))
+def test_any_file_is_a_valid_curve_or_a_config_error(tmp_path_factory, data):
+    path = tmp_path_factory.mktemp("csv") / "t.csv"
+    path.write_bytes(data)
+    try:
+        depth, pressure, sigma = read_curve_csv(path)
+    except ConfigError as err:
+        assert err.key and err.allowed
+    else:
+        assert len(depth) >= 2 and np.all(np.diff(depth) > 0) and depth[0] >= 0
+        assert np.all(np.isfinite(pressure)) and np.all(pressure >= 0)

@@ -27,7 +27,8 @@ from calendaring.contact_params import (
 from calendaring.errors import ConfigError
 
 HOST_MODULES = ("calendaring.config", "calendaring.units", "calendaring.timestep",
-                "calendaring.contact_params")
+                "calendaring.contact_params", "calendaring.cli_contract",
+                "calendaring.preflight")
 
 
 def test_host_modules_do_not_import_taichi_or_torch():

@@ -76,7 +76,7 @@ def test_predict_text_and_json(model_pt, capsys):
 def test_predict_bad_parameters_exit_2(model_pt, capsys, params, key):
     assert main(["predict", str(model_pt), "--params", *params]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and key in err
+    assert err.startswith("surrogate: error:") and key in err
 
 
 def test_dataset_without_expected_datasets_exits_2(model_pt, tmp_path, capsys):
@@ -110,5 +110,5 @@ def test_train_bad_loss_weight_or_dropout_exit_2(tiny_h5, tmp_path, capsys, flag
     out = tmp_path / "bad.pt"
     assert main(["train", str(tiny_h5), "--out", str(out), flag, value, "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and key in err and value in err
+    assert err.startswith("surrogate: error:") and key in err and value in err
     assert not out.exists()

@@ -345,3 +345,19 @@ def test_packing_start_pressure_target_and_unloading(tiny_run, tmp_path):
     assert spring["h_release"] > spring["h_min"]
     assert not math.isnan(rec.pressure_at(rec.info["final_depth"]))
     assert os.path.getsize(out) > 0
+
+
+def test_preflight_estimate_matches_the_run(tiny_run):
+    """The pre-flight estimate (configuration only) against what the run did: the time step
+    exactly, the plate speed, the particle count and the calendering steps closely."""
+    from calendaring.preflight import estimate
+    from calendaring.runfile import read_run
+
+    rec = read_run(tiny_run)
+    est = estimate(rec.config)
+    info = rec.info
+    assert est.dt == pytest.approx(info["dt"], rel=1e-9)
+    assert est.plate_speed == pytest.approx(info["plate_speed"], rel=0.05)
+    assert est.n_particles == pytest.approx(info["n_particles"], rel=0.10)
+    assert est.steps["calender"] == pytest.approx(info["stages"]["calender"]["steps"], rel=0.05)
+    assert est.pool_slots >= info["pool_capacity"] * 0.9

@@ -179,7 +179,7 @@ def test_sweep_cli_rejects_bad_input(tmp_path):
     r = run("--preset", "tiny", "--role", "test", "--out", str(tmp_path / "a"))
     assert r.returncode == 2 and "--role = 'test'" in r.stderr
     r = run("--preset", "tiny", "--replicates", "0", "--out", str(tmp_path / "a"))
-    assert r.returncode == 2 and "--replicates = 0" in r.stderr
+    assert r.returncode == 2 and "--replicates: 0 is invalid" in r.stderr
     (tmp_path / "file").write_text("x")
     r = run("--preset", "tiny", "--out", str(tmp_path / "file"))
     assert r.returncode == 2 and "a folder" in r.stderr
