@@ -18,8 +18,6 @@ import re
 import sys
 from pathlib import Path
 
-from calendaring.errors import ConfigError
-
 from calendaring.cli_contract import (
     EXIT_BAD_INPUT,
     EXIT_OK,
@@ -28,6 +26,7 @@ from calendaring.cli_contract import (
     output_path,
     run_cli,
 )
+from calendaring.errors import ConfigError
 
 _Parser = ContractParser
 
@@ -308,11 +307,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
     handler = {"sobol": cmd_sobol, "trends": cmd_trends, "microstructure": cmd_microstructure,
                "compare": cmd_compare}[args.command]
+    from analysis.render import RenderError
     from calendaring._version import __version__
     from calendaring.dataset import DatasetError
     from calendaring.runfile import RunFileError
-
-    from analysis.render import RenderError
 
     bad: tuple[type[BaseException], ...] = (DatasetError, RunFileError, RenderError)
     try:

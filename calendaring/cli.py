@@ -14,6 +14,7 @@ kept), 1 an internal error (a bug: traceback and a line saying so), 130 interrup
     calendaring pack --preset quick --seed 0 --out bed.csv      # settle a bed only
     calendaring sweep --design lhs --n 280 --preset sweep --out RUNS/
     calendaring dataset RUNS/ --out data/dataset.h5
+    calendaring digest RUNS/                  # digests of run files made without them
 """
 
 from __future__ import annotations
@@ -25,16 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.config import (
-    ARCHES,
-    PRESETS,
-    SEED_MAX,
-    THREADS_MAX,
-    load_config,
-    load_preset,
-    parse_override,
-    with_overrides,
-)
 from calendaring.cli_contract import (
     EXIT_BAD_INPUT,
     EXIT_OK,
@@ -45,6 +36,16 @@ from calendaring.cli_contract import (
     output_path,
     real,
     run_cli,
+)
+from calendaring.config import (
+    ARCHES,
+    PRESETS,
+    SEED_MAX,
+    THREADS_MAX,
+    load_config,
+    load_preset,
+    parse_override,
+    with_overrides,
 )
 from calendaring.errors import ConfigError
 from calendaring.preflight import DEFAULT_MAX_HOURS
@@ -121,8 +122,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="each run needs one 'GPU' worker resource (workers started with "
                         "--resources GPU=1); set numerics.arch with --set")
     s.add_argument("--quiet", action="store_true", help="no progress lines")
-    d = sub.add_parser("dataset", help="consolidate a sweep's run files into a training "
-                                       "dataset file")
+    g = sub.add_parser("digest", help="write the digest (what a dataset needs, ~30 kB) of "
+                                      "every finished run file of a sweep folder that lacks "
+                                      "one")
+    g.add_argument("runs", help="sweep folder")
+    g.add_argument("--overwrite", action="store_true", help="rewrite existing digests")
+    d = sub.add_parser("dataset", help="consolidate a sweep's run files (or their digests) "
+                                       "into a training dataset file")
     d.add_argument("runs", help="sweep folder (or a folder of run files)")
     d.add_argument("--out", required=True, help="dataset file to write (.h5)")
     d.add_argument("--points", type=integer(2, 10**6), default=196,
@@ -246,6 +252,30 @@ def cmd_sweep(args) -> int:
     for e in failed:
         print(f"failed: {e.run_id} ({e.attempts} attempts): "
               f"{e.error.splitlines()[0] if e.error else ''}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_digest(args) -> int:
+    from calendaring.digest import digest_path, write_digest
+    from calendaring.runfile import RunFileError, read_run
+
+    folder = input_folder(args.runs, "RUNS")
+    output_path(folder / "digests", "RUNS/digests", folder=True)
+    run_dir = folder / "runs" if (folder / "runs").is_dir() else folder
+    wrote = kept = 0
+    for path in sorted(run_dir.glob("*.h5")):
+        dest = digest_path(folder, path.stem)
+        if dest.exists() and not args.overwrite:
+            kept += 1
+            continue
+        try:
+            rec = read_run(path)
+        except RunFileError as err:
+            print(f"skipped {path.name}: {err.reason}", file=sys.stderr)
+            continue
+        write_digest(dest, rec)
+        wrote += 1
+    print(f"wrote {wrote} digests under {folder / 'digests'} ({kept} already there)")
     return EXIT_OK
 
 
@@ -411,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
     handler = {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
                "export": cmd_export, "pack": cmd_pack, "sweep": cmd_sweep,
-               "dataset": cmd_dataset}[args.command]
+               "dataset": cmd_dataset, "digest": cmd_digest}[args.command]
     from calendaring.dataset import DatasetError
     from calendaring.packing import PackingError
     from calendaring.runfile import RunFileError

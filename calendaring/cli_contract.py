@@ -237,7 +237,7 @@ def run_cli(prog: str, handler: Callable[[], int], user_errors: tuple = (),
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Exception:  # noqa: BLE001 - anything else is a bug, reported as one
+    except Exception:
         return _bug(prog, version)
 
 

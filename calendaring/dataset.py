@@ -535,6 +535,53 @@ def _problem_key(cfg) -> str:
                                        "numerics.seed", "electrode.packing"))
 
 
+@dataclass
+class _Source:
+    """What the dataset takes from one run: its run file or, without one, its digest."""
+
+    name: str
+    kind: str  # "run file" or "digest"
+    config: object
+    preset: str
+    seed: int
+    breakage_model: str
+    stroke: float
+    final_depth: float
+    wall_seconds: float
+    peak_load: np.ndarray
+    diameter: np.ndarray
+    pressure_means: object  # n_points -> interval means [Pa]
+
+    @classmethod
+    def open(cls, run: Path, digest: Path) -> _Source:
+        from calendaring.digest import read_digest
+        from calendaring.runfile import RunFileError, read_run
+
+        try:
+            rec = read_run(run)
+        except RunFileError as err:
+            if not digest.exists():
+                raise
+            try:
+                dg = read_digest(digest)
+            except RunFileError as err2:
+                raise RunFileError(run, f"{err.reason}; digest: {err2.reason}") from None
+            return cls(name=run.stem, kind="digest", config=dg.config, preset=dg.preset,
+                       seed=dg.seed,
+                       breakage_model=dg.breakage_model, stroke=dg.stroke,
+                       final_depth=dg.final_depth, wall_seconds=dg.wall_seconds,
+                       peak_load=dg.peak_load, diameter=dg.diameter,
+                       pressure_means=lambda n: dg.pressure_means(n)[1])
+        return cls(name=run.stem, kind="run file", config=rec.config, preset=rec.preset,
+                   seed=rec.seed,
+                   breakage_model=rec.breakage_model, stroke=rec.stroke,
+                   final_depth=float(rec.info.get("final_depth", 0.0)),
+                   wall_seconds=float(rec.info.get("wall_seconds", 0.0)),
+                   peak_load=rec.breakage["peak_load"], diameter=rec.breakage["diameter"],
+                   pressure_means=lambda n: resample_pressure(
+                       rec.pressure["depth"], rec.pressure["value"], rec.stroke, n)[1])
+
+
 def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int = 17,
                   savgol_order: int = 3, bins: int = 30, load_scale: str = "log",
                   load_range: tuple[float, float] | None = None,
@@ -542,11 +589,14 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
                   space: ParameterSpace = PAPER_SPACE, progress: bool = True,
                   command: str = "") -> Dataset:
     """Consolidate the run files of a sweep folder (``runs/*.h5``, or ``*.h5`` directly in
-    ``folder``) into a :class:`Dataset`. Roles and replicate groups come from the sweep's
-    manifest when there is one (otherwise every run is ``train``). Corrupt, incomplete,
-    no-breakage or foreign run files are listed in ``skipped`` with the reason.
+    ``folder``) into a :class:`Dataset`; a run without a usable run file is taken from its
+    digest ``digests/<run>.h5`` (:mod:`calendaring.digest`) when there is one. Roles and
+    replicate groups come from the sweep's manifest when there is one (otherwise every run
+    is ``train``). Corrupt, incomplete, no-breakage or foreign runs are listed in
+    ``skipped`` with the reason.
     """
-    from calendaring.runfile import RunFileError, read_run
+    from calendaring.digest import digest_path
+    from calendaring.runfile import RunFileError
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -556,8 +606,9 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
     if bins < 2:
         raise ConfigError("bins", bins, ">= 2")
     smooth(np.zeros(savgol_window + 1), savgol_window, savgol_order)  # validates the window
-    files = sorted((folder / "runs").glob("*.h5")) if (folder / "runs").is_dir() else \
-        sorted(folder.glob("*.h5"))
+    run_dir = folder / "runs" if (folder / "runs").is_dir() else folder
+    names = sorted({p.stem for p in run_dir.glob("*.h5")}
+                   | {p.stem for p in (folder / "digests").glob("*.h5")})
     manifest = {}
     if (folder / "manifest.json").exists():
         from calendaring.sweep import read_manifest
@@ -565,43 +616,42 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
         manifest = read_manifest(folder)
     rows, skipped, key0, rec0 = [], [], None, None
     t0 = time.perf_counter()
-    for k, path in enumerate(files):
+    for k, name in enumerate(names):
+        path = run_dir / f"{name}.h5"
         try:
-            rec = read_run(path)
+            rec = _Source.open(path, digest_path(folder, name))
         except RunFileError as err:
             skipped.append([path.name, err.reason])
             continue
         why = None
         if rec.breakage_model == "none":
             why = "a no-breakage run"
-        elif rec.info.get("final_depth", 0.0) < rec.stroke * (1 - 1e-6):
-            why = (f"incomplete stroke ({rec.info.get('final_depth', 0.0):.4g} of "
-                   f"{rec.stroke:.4g} m)")
+        elif rec.final_depth < rec.stroke * (1 - 1e-6):
+            why = f"incomplete stroke ({rec.final_depth:.4g} of {rec.stroke:.4g} m)"
         else:
             key = _problem_key(rec.config)
             if key0 is None:
                 key0, rec0 = key, rec
             elif key != key0:
-                why = f"a different problem from {rec0.path.name} (configuration differs " \
+                why = f"a different problem from {rec0.name}.h5 (configuration differs " \
                       "beyond the breakage parameters, seed and packing)"
         if why is None:
             try:
-                _, p = resample_pressure(rec.pressure["depth"], rec.pressure["value"],
-                                         rec.stroke, n_points)
+                p = rec.pressure_means(n_points)
             except ValueError as err:
                 why = f"unusable pressure trace: {err}"
         if why:
             skipped.append([path.name, why])
             continue
-        e = manifest.get(path.stem)
+        e = manifest.get(name)
         rows.append({
             "params": [float(getattr(rec.config.breakage, n)) for n in space.names],
-            "raw": p, "load": rec.breakage["peak_load"], "diameter": rec.breakage["diameter"],
-            "run_id": path.stem, "file": path.name, "role": e.role if e else "train",
+            "raw": p, "load": rec.peak_load, "diameter": rec.diameter,
+            "run_id": name, "file": path.name, "role": e.role if e else "train",
             "design_index": e.index if e else -1, "seed": rec.seed,
-            "group": e.group if e else "", "wall": float(rec.info.get("wall_seconds", 0.0))})
-        if progress and (k == len(files) - 1 or k % 25 == 0):
-            print(f"[dataset] {k + 1}/{len(files)} run files read "
+            "group": e.group if e else "", "wall": rec.wall_seconds, "kind": rec.kind})
+        if progress and (k == len(names) - 1 or k % 25 == 0):
+            print(f"[dataset] {k + 1}/{len(names)} runs read "
                   f"({time.perf_counter() - t0:.0f} s)",
                   file=sys.stderr, flush=True)
     if not rows:
@@ -640,7 +690,8 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
         provenance={"runs_folder": str(folder.resolve()), "command": command,
                     "software_version": __version__, "built": datetime.datetime.now(
                         datetime.UTC).isoformat(timespec="seconds"),
-                    "run_files": len(files), "used": len(rows), "skipped": len(skipped),
+                    "run_files": len(names), "used": len(rows), "skipped": len(skipped),
+                    "from_digests": sum(r["kind"] == "digest" for r in rows),
                     "preset": rec0.preset, "group_names": groups})
 
 

@@ -215,7 +215,8 @@ def check(cfg: SimConfig, max_hours: float = DEFAULT_MAX_HOURS,
     steps = est.total_steps
     why = (f"dt = {est.dt:.3g} s (numerics.timestep_fraction x the smallest Rayleigh time), "
            f"plate speed {est.plate_speed:.3g} m/s over protocol.stroke = "
-           f"{cfg.protocol.stroke:.3g} m; stages {', '.join(f'{k} {v:.3g}' for k, v in est.steps.items())}")
+           f"{cfg.protocol.stroke:.3g} m; stages "
+           + ", ".join(f"{k} {v:.3g}" for k, v in est.steps.items()))
     if not steps <= MAX_STEPS:
         raise ResourceError("time steps", f"{steps:.3g} steps", f"<= {MAX_STEPS:.0e}", why)
     if not est.wall_seconds <= max_hours * 3600:

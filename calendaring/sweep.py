@@ -12,6 +12,10 @@ Layout of ``RUNS/``::
     packings/<key>.csv          one settled bed per (base configuration, seed)
     runs/<run_id>.h5            one run file per run; run_id = <role>-<label>-<index>-s<seed>-
                                 <hash>, the hash over the run's full configuration
+    digests/<run_id>.h5         the run's digest (calendaring.digest, ~30 kB): what a dataset
+                                needs; a run with a complete digest counts as finished
+                                even without its run file, so a sweep's digests and
+                                manifest, kept in the repository, resume it on a new machine
     logs/<run_id>.log           the run's output (progress lines, diagnostics)
 
 Every run is a task on a Dask cluster (a ``LocalCluster`` of ``--workers`` by default) that
@@ -172,6 +176,25 @@ def _now() -> str:
     return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
 
 
+def finished(folder: Path, file: str) -> bool:
+    """Is the run ``file`` (relative to the sweep ``folder``) finished: a complete run file,
+    or, without one, a complete digest (``digests/<run>.h5``, e.g. restored from the
+    repository on a fresh machine)?"""
+    from calendaring.digest import digest_ok, digest_path
+
+    path = Path(folder) / file
+    return run_file_ok(path)[0] or digest_ok(digest_path(folder, path.stem))[0]
+
+
+def write_run_digest(folder: Path, file: str) -> Path:
+    """Write the digest of the finished run ``file`` of the sweep ``folder``."""
+    from calendaring.digest import digest_path, write_digest
+    from calendaring.runfile import read_run
+
+    path = Path(folder) / file
+    return write_digest(digest_path(folder, path.stem), read_run(path))
+
+
 def run_file_ok(path: Path) -> tuple[bool, str]:
     """Does ``path`` exist and read back as a complete run file?"""
     from calendaring.runfile import RunFileError, read_run
@@ -242,8 +265,7 @@ def run_task(folder: str, entry: dict, packing: str, threads: int,
     """One calendering run in a subprocess; returns status, wall time and error text."""
     folder = Path(folder)
     out = folder / entry["file"]
-    ok, _ = run_file_ok(out)
-    if ok:
+    if finished(folder, entry["file"]):
         return {"status": "done", "wall_time": 0.0, "error": "", "reused": True}
     ckpt = out.with_name(out.name + ".ckpt")
     prev = ckpt.with_name(ckpt.name + ".prev")
@@ -261,6 +283,7 @@ def run_task(folder: str, entry: dict, packing: str, threads: int,
     rc, wall = _subprocess(args, log, timeout)
     ok, why = run_file_ok(out)
     if rc == 0 and ok:
+        write_run_digest(folder, entry["file"])
         return {"status": "done", "wall_time": wall, "error": "", "reused": False}
     kind = {3: "unstable (guard stop)", 2: "bad input or file-system error",
             1: "internal error (a bug)",
@@ -331,7 +354,7 @@ def sweep(opt: SweepOptions, task=None) -> dict[str, RunEntry]:
                              opt.replicates, opt.role)
     task = task or run_task
     with _folder_lock(out):
-        for sub in ("designs", "packings", "runs", "logs"):
+        for sub in ("designs", "packings", "runs", "digests", "logs"):
             (out / sub).mkdir(parents=True, exist_ok=True)
         write_design_csv(out / "designs" / f"{label}.csv", x)
         rep = design_report(x)
@@ -344,8 +367,7 @@ def sweep(opt: SweepOptions, task=None) -> dict[str, RunEntry]:
         todo = []
         for e in planned:
             cur = runs[e.run_id]
-            ok, _ = run_file_ok(out / cur.file)
-            if ok:
+            if finished(out, cur.file):
                 cur.status = "done"
             elif cur.status == "failed" and cur.attempts >= opt.max_attempts:
                 continue
@@ -447,5 +469,19 @@ def summary(runs: dict[str, RunEntry]) -> dict:
             "wall_time_total": float(np.sum(walls)) if walls else None}
 
 
-__all__ = ["MANIFEST", "ROLES", "RunEntry", "SweepOptions", "pack_task", "plan",
-           "read_manifest", "run_file_ok", "run_task", "summary", "sweep", "write_manifest"]
+__all__ = [
+    "MANIFEST",
+    "ROLES",
+    "RunEntry",
+    "SweepOptions",
+    "finished",
+    "pack_task",
+    "plan",
+    "read_manifest",
+    "run_file_ok",
+    "run_task",
+    "summary",
+    "sweep",
+    "write_manifest",
+    "write_run_digest",
+]

@@ -20,8 +20,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from calendaring.errors import ConfigError
-
 from calendaring.cli_contract import (
     EXIT_BAD_INPUT,
     EXIT_OK,
@@ -29,6 +27,7 @@ from calendaring.cli_contract import (
     output_path,
     run_cli,
 )
+from calendaring.errors import ConfigError
 
 _Parser = ContractParser
 

@@ -17,10 +17,6 @@ import sys
 import time
 from pathlib import Path
 
-from calendaring.dataset import DatasetError
-from calendaring.errors import ConfigError
-from surrogate.checkpoint import CheckpointError, json_default
-
 from calendaring.cli_contract import (
     EXIT_BAD_INPUT,
     EXIT_OK,
@@ -28,6 +24,9 @@ from calendaring.cli_contract import (
     output_path,
     run_cli,
 )
+from calendaring.dataset import DatasetError
+from calendaring.errors import ConfigError
+from surrogate.checkpoint import CheckpointError, json_default
 
 
 def _set_threads(n: int | None) -> None:

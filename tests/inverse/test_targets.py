@@ -192,7 +192,7 @@ def test_any_file_is_a_valid_curve_or_a_config_error(tmp_path_factory, data):
     path = tmp_path_factory.mktemp("csv") / "t.csv"
     path.write_bytes(data)
     try:
-        depth, pressure, sigma = read_curve_csv(path)
+        depth, pressure, _ = read_curve_csv(path)
     except ConfigError as err:
         assert err.key and err.allowed
     else:

@@ -187,7 +187,7 @@ def test_kills_at_random_moments_of_checkpointing_lose_nothing(tmp_path, bed, re
                 pass
         assert any(usable), "no usable checkpoint after a kill"
     assert kills >= 1, "the run ended before any kill"
-    res = subprocess.run(cmd + ["--resume"], cwd=ROOT, capture_output=True, text=True,
+    res = subprocess.run([*cmd, "--resume"], cwd=ROOT, capture_output=True, text=True,
                          timeout=300)
     assert res.returncode == 0, res.stderr[-2000:]
     _same_run(out, reference)
