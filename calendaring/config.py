@@ -757,7 +757,7 @@ def config_hash_excluding(cfg: Any, keys: Sequence[str]) -> str:
     return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
 
 
-PRESETS = ("paper", "quick", "sweep", "tiny")
+PRESETS = ("paper", "quick", "rve", "sweep", "tiny")
 
 
 def preset_path(name: str) -> Path:
