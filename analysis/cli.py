@@ -18,17 +18,14 @@ import re
 import sys
 from pathlib import Path
 
-from calendaring.cli_contract import (
-    EXIT_BAD_INPUT,
+from calendaring import (
     EXIT_OK,
     EXIT_UNSTABLE,
+    ConfigError,
     ContractParser,
     output_path,
     run_cli,
 )
-from calendaring.errors import ConfigError
-
-_Parser = ContractParser
 
 
 def parse_power_of_two(text: str) -> int:
@@ -45,9 +42,9 @@ def parse_power_of_two(text: str) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = _Parser(prog="analysis", description=__doc__.split("\n\n")[0],
+    ap = ContractParser(prog="analysis", description=__doc__.split("\n\n")[0],
                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=ContractParser)
 
     s = sub.add_parser("sobol", help="Sobol indices of the four key outputs on a surrogate")
     s.add_argument("model", help="surrogate checkpoint (MODEL.pt)")
@@ -143,7 +140,7 @@ def cmd_sobol(args) -> int:
         raise ConfigError("--tol", args.tol, "in (0, 1)")
     ds = None
     if args.dataset:
-        from calendaring.dataset import read_dataset
+        from calendaring import read_dataset
 
         ds = read_dataset(args.dataset)
     check_power_of_two(n)
@@ -202,7 +199,7 @@ def _parse_snapshots(text: str | None, n: int) -> list[int] | None:
 
 def cmd_microstructure(args) -> int:
     from analysis.plots import atomic_write_json
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     rec = read_run(args.run_file)
     snaps = _parse_snapshots(args.snapshots, len(rec.snapshots))
@@ -301,16 +298,8 @@ def cmd_compare(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``analysis`` command."""
-    try:
-        args = _parser().parse_args(argv)
-    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    handler = {"sobol": cmd_sobol, "trends": cmd_trends, "microstructure": cmd_microstructure,
-               "compare": cmd_compare}[args.command]
     from analysis.render import RenderError
-    from calendaring._version import __version__
-    from calendaring.dataset import DatasetError
-    from calendaring.runfile import RunFileError
+    from calendaring import DatasetError, RunFileError, __version__
 
     bad: tuple[type[BaseException], ...] = (DatasetError, RunFileError, RenderError)
     try:
@@ -319,7 +308,13 @@ def main(argv: list[str] | None = None) -> int:
         bad = (*bad, CheckpointError)
     except ImportError:
         pass
-    return run_cli("analysis", lambda: handler(args), bad, __version__)
+
+    def handle() -> int:
+        args = _parser().parse_args(argv)
+        return {"sobol": cmd_sobol, "trends": cmd_trends, "microstructure": cmd_microstructure,
+                "compare": cmd_compare}[args.command](args)
+
+    return run_cli("analysis", handle, bad, __version__)
 
 
 if __name__ == "__main__":

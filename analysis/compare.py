@@ -42,8 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.config import format_override
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, format_override
 
 STUDIES = ("r0r1", "psd")
 PRESETS = ("tiny", "quick", "paper")
@@ -76,7 +75,7 @@ class Case:
 
 
 def _baseline_am(preset: str):
-    from calendaring.config import load_preset
+    from calendaring import load_preset
 
     cfg = load_preset(preset)
     am = cfg.electrode.sizes.get("AM")
@@ -101,7 +100,7 @@ def _fit_cell(preset: str, sets: dict, extra_sets: Sequence[str] = ()) -> dict:
     """``sets`` plus a larger square cell when the preset's periodic cell is too small for
     the case's largest AM diameter (the minimum-image check of ``SimConfig.check_run``);
     the cell grows in 1 um steps until the configuration passes. Same coating per area."""
-    from calendaring.config import load_preset, parse_override, with_overrides
+    from calendaring import load_preset, parse_override, with_overrides
 
     base = load_preset(preset)
     over = dict(parse_override(s) for s in extra_sets)
@@ -152,7 +151,7 @@ def plan(studies: Sequence[str], preset: str, extra_sets: Sequence[str] = ()) ->
 
 def _check_overrides(preset: str, extra_sets: Sequence[str]) -> None:
     """Bad ``--set`` overrides are bad input (ConfigError), not failed runs."""
-    from calendaring.config import load_preset, parse_override, with_overrides
+    from calendaring import load_preset, parse_override, with_overrides
 
     over = dict(parse_override(str(x)) for x in extra_sets)
     if over:
@@ -180,7 +179,7 @@ def run_command(case: Case, out: Path, preset: str, seed: int,
 
 
 def _readable(path: Path) -> bool:
-    from calendaring.runfile import RunFileError, read_run
+    from calendaring import RunFileError, read_run
 
     try:
         read_run(path)
@@ -257,7 +256,7 @@ def _first_divergence(a: dict, b: dict) -> dict:
 def _curve(rec, max_points: int = 400) -> dict:
     d, p = rec.pressure["depth"], rec.pressure["value"]
     if len(d) > max_points:  # interval means on an even depth grid (exact for the trace)
-        from calendaring.dataset import resample_pressure
+        from calendaring import resample_pressure
 
         try:
             d, p = resample_pressure(d, p, float(d[-1]), max_points)
@@ -448,7 +447,7 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
         microstructure tables.
     """
     from analysis.plots import atomic_write_json
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     if int(jobs) < 1:
         raise ConfigError("--jobs", jobs, "an integer >= 1")

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 PHASES = ("solid", "am_cb")
 #: Default voxels across the smallest particle diameter (2 um fragments in the quick and
@@ -635,10 +635,10 @@ def analyse_snapshot(snapshot, cell_x: float, cell_y: float, *,
                      second_resolution: bool = True,
                      second_factor: float = SECOND_RESOLUTION_FACTOR
                      ) -> SnapshotMicrostructure:
-    """Porosity, tortuosity and D_eff of one snapshot (``calendaring.runfile.Snapshot``).
+    """Porosity, tortuosity and D_eff of one snapshot (``calendaring.process.runfile.Snapshot``).
 
     Args:
-        snapshot: a snapshot from :func:`calendaring.runfile.read_run`.
+        snapshot: a snapshot from :func:`calendaring.process.runfile.read_run`.
         cell_x, cell_y: periodic cell [m] (``RunRecord.cell_x``, ``cell_y``).
         voxels_per_diameter: voxels across ``reference_diameter`` (the lateral voxel count
             is rounded to an even number).
@@ -712,7 +712,7 @@ class MicrostructureResult:
 
     def write_json(self, path: str | Path) -> Path:
         """Write :meth:`to_json` atomically (temporary name, then rename)."""
-        from calendaring.fileio import write_json
+        from calendaring import write_json
 
         return write_json(path, self.to_json(), indent=2)
 
@@ -753,7 +753,7 @@ def analyse_run(run_file, snapshots=None, voxels_per_diameter: float =
     """
     from tqdm import tqdm
 
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     t0 = time.perf_counter()
     record = read_run(run_file)
@@ -845,7 +845,7 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 
 
 def _save_figure(fig, path: Path) -> Path:
-    from calendaring.fileio import save_figure
+    from calendaring import save_figure
 
     return save_figure(fig, path, dpi=150, bbox_inches="tight")
 

@@ -1,7 +1,7 @@
 """The paper's four key outputs of a calendering run (section 3.3, Fig. 10).
 
 From a pressure-depth curve and a breakage distribution (a 2-D histogram of probabilities,
-``[load bin, diameter bin]``, as in :mod:`calendaring.dataset` and the surrogate's
+``[load bin, diameter bin]``, as in :mod:`calendaring.data.dataset` and the surrogate's
 predictions), for one run or a batch:
 
 ==================  ====  ===========================================================
@@ -14,7 +14,7 @@ diameter_centroid   m     probability-weighted centroid along the parent-diamete
 low_stress_ratio    1     probability mass in the lowest third of the load bins
 ==================  ====  ===========================================================
 
-The centroids come from :func:`calendaring.dataset.centroids`. An empty histogram (a run
+The centroids come from :func:`calendaring.data.dataset.centroids`. An empty histogram (a run
 without breakage events) has NaN centroids and a NaN low-stress ratio.
 
     >>> out = key_outputs(pressure, distribution, load_edges, diameter_edges)
@@ -25,8 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from calendaring.dataset import centroids
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, centroids
 
 OUTPUTS = ("peak_pressure", "stress_centroid", "diameter_centroid", "low_stress_ratio")
 """Names of the four outputs, in the paper's order (Fig. 10 a-d)."""
@@ -142,7 +141,7 @@ def outputs_of_prediction(pred, model, **kw) -> dict[str, np.ndarray]:
 
 
 def outputs_of_dataset(ds, **kw) -> dict[str, np.ndarray]:
-    """The four outputs of every run of a :class:`calendaring.dataset.Dataset` (smoothed
+    """The four outputs of every run of a :class:`calendaring.data.dataset.Dataset` (smoothed
     pressure, stored histogram and edges; the load axis scale from ``ds.load_scale``)."""
     kw.setdefault("log_load", ds.load_scale == "log")
     return key_outputs(ds.pressure, ds.histogram, ds.load_edges, ds.diameter_edges, **kw)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from calendaring.fileio import save_figure as _save_figure
-from calendaring.fileio import write_json
+from calendaring import save_figure as _save_figure
+from calendaring import write_json
 
 
 def atomic_write_json(path: str | Path, obj) -> Path:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 #: Bond-state colours (Fig. 6: intact blue, never bonded white, broken red).
 BOND_COLOURS = {"contact, never bonded": "white", "intact": "#1f5fd6",
@@ -44,7 +44,7 @@ def _pyvista():
 
 
 def _record_and_snapshot(run_file, snapshot):
-    from calendaring.runfile import RunRecord, read_run
+    from calendaring import RunRecord, read_run
 
     record = run_file if isinstance(run_file, RunRecord) else read_run(run_file)
     if not record.snapshots:

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.outputs import LABELS, OUTPUTS, UNITS, key_outputs
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 Model = Callable[[np.ndarray], Mapping[str, np.ndarray]]
 
@@ -505,7 +505,7 @@ def given_data_indices(x_unit, y: Mapping[str, np.ndarray], names: Sequence[str]
 
 def dataset_given_data(ds, method: str = "rbd_fast", roles: Sequence[str] = ("train",),
                        seed: int = 0) -> dict:
-    """:func:`given_data_indices` on a :class:`calendaring.dataset.Dataset`'s runs of
+    """:func:`given_data_indices` on a :class:`calendaring.data.dataset.Dataset`'s runs of
     ``roles`` (the raw DEM results: smoothed pressure and binned events, no surrogate)."""
     from analysis.outputs import outputs_of_dataset
 

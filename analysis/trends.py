@@ -11,7 +11,7 @@ batch through the same model interface as :mod:`analysis.sensitivity`::
     >>> tr["outputs"]["d0"]["peak_pressure"]      # (41,) Pa along the d0 sweep
 
 A calibration result is any JSON file with a top-level ``"parameters"`` mapping
-``{name: physical value}`` (SI units, percent for A and R_t, as :mod:`calendaring.params`),
+``{name: physical value}`` (SI units, percent for A and R_t, as :mod:`calendaring.data.params`),
 or a list of ``{"name", "value"}`` rows as ``inverse calibrate`` writes; missing names are
 held at mid-range.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.outputs import DISPLAY, LABELS, OUTPUTS, UNITS
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 DEFAULT_POINTS = 41
 COLOURS = {"peak_pressure": "tab:blue", "stress_centroid": "tab:orange",
@@ -37,7 +37,7 @@ def held_point(space, at=None) -> np.ndarray:
     """The unit-cube point ``(k,)`` at which the other parameters are held.
 
     Args:
-        space: the :class:`calendaring.params.ParameterSpace` of the model.
+        space: the :class:`calendaring.data.params.ParameterSpace` of the model.
         at: ``None`` (mid-range, 0.5 in every unit coordinate), a path to a JSON file with a
             top-level ``"parameters"`` mapping ``{name: physical value}`` (or a list of
             ``{"name", "value"}`` rows, as ``inverse calibrate`` writes), such a mapping

@@ -71,7 +71,7 @@ def hertz_config(cfg, threads: int, skin: float | None = None):
     """``cfg`` reduced to Hertz-Mindlin: no plasticity, adhesion, pull-off, bonds, breakage,
     gravity or energy ledger; tangential stiffness 8 G* sqrt(R* delta). ``skin`` sets the
     Verlet skin [m] (default: the configuration's)."""
-    from calendaring.config import with_overrides
+    from calendaring import with_overrides
 
     over = {"numerics.threads": threads, "numerics.track_energy": False,
             "numerics.skin": skin if skin is not None else cfg.numerics.skin,
@@ -97,8 +97,7 @@ def paper_bed(cfg, seed: int, cell_scale: float = 1.0, porosity: float = 0.33,
     pressure is tens of MPa. Returns (pos, rad, mat, z_top, cfg)."""
     from bench_step import compact_bed
 
-    from calendaring.config import with_overrides
-    from calendaring.electrode import recipe
+    from calendaring import recipe, with_overrides
 
     cfg = with_overrides(cfg, {"domain.cell_x": cfg.domain.cell_x * cell_scale,
                                "domain.cell_y": cfg.domain.cell_y * cell_scale})
@@ -115,7 +114,7 @@ def paper_bed(cfg, seed: int, cell_scale: float = 1.0, porosity: float = 0.33,
 # ----------------------------------------------------------------------------- ours
 def our_timestep(cfg, pos, rad, mat) -> float:
     """Our time step for this bed [s] (what LIGGGHTS is given)."""
-    from calendaring.simulation import Simulation
+    from calendaring import Simulation
 
     sim = Simulation(cfg, capacity=len(rad))
     try:
@@ -127,7 +126,7 @@ def our_timestep(cfg, pos, rad, mat) -> float:
 
 def run_ours(cfg, pos, rad, mat, z_top, speed: float, steps: int, every: int = 100) -> dict:
     """Time ``steps`` steps of our engine from rest; top-plate force every ``every`` steps."""
-    from calendaring.simulation import Simulation
+    from calendaring import Simulation
 
     sim = Simulation(cfg, capacity=len(rad))
     try:
@@ -220,7 +219,7 @@ def liggghts_files(folder: Path, cfg, pos, rad, mat, z_top: float, dt: float, sp
                    steps: int, skin: float, every: int = 100) -> None:
     """The bed as ``bed.data`` (atom types 1 AM, 2 CB; 3 and 4 are the plates) and the
     input ``in.bench`` with every material and contact constant taken from ``cfg``."""
-    from calendaring.packing import Packing, write_lammps_data
+    from calendaring import Packing, write_lammps_data
 
     names = cfg.material_names
     if names != ["AM", "CB"]:
@@ -334,7 +333,7 @@ def plot_versus(path: Path, ours: np.ndarray, peer: np.ndarray | None, area: flo
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from calendaring.fileio import save_figure
+    from calendaring import save_figure
 
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot((ours[0, 1] - ours[:, 1]) * 1e9, np.abs(ours[:, 2]) / area / 1e6, label="calendaring")
@@ -392,8 +391,7 @@ def interleaved(first, second, n: int, labels: tuple[str, str],
 
 
 def cmd_versus(args) -> dict:
-    from calendaring.backend import init_taichi
-    from calendaring.config import load_preset, with_overrides
+    from calendaring import init_taichi, load_preset, with_overrides
 
     init_taichi(arch=args.arch, threads=args.threads)
     cfg = hertz_config(load_preset("paper"), args.threads)
@@ -490,14 +488,14 @@ def field_bytes(obj) -> int:
 
 
 def full_config(threads: int, arch: str = "cpu"):
-    from calendaring.config import load_preset, with_overrides
+    from calendaring import load_preset, with_overrides
 
     return with_overrides(load_preset("paper"), {"numerics.threads": threads,
                                                  "numerics.arch": arch})
 
 
 def tile(pos, rad, mat, cfg, nx: int, ny: int):
-    from calendaring.config import with_overrides
+    from calendaring import with_overrides
 
     lx, ly = cfg.domain.cell_x, cfg.domain.cell_y
     shifts = [(i * lx, j * ly, 0.0) for i in range(nx) for j in range(ny)]
@@ -508,8 +506,7 @@ def tile(pos, rad, mat, cfg, nx: int, ny: int):
 
 def measure_full(cfg, pos, rad, mat, z_top, steps: int, speed: float) -> dict:
     """Full model from the compacted bed: bonds created, breakage live, ``steps`` timed."""
-    from calendaring.run import pool_capacity
-    from calendaring.simulation import Simulation
+    from calendaring import Simulation, pool_capacity
 
     cap = pool_capacity(cfg, rad, mat)
     sim = Simulation(cfg, capacity=cap)
@@ -544,7 +541,7 @@ import time, sys
 t0 = time.perf_counter()
 sys.path.insert(0, {here!r})
 from bench_dem import full_config
-from calendaring.simulation import Simulation
+from calendaring.engine.simulation import Simulation
 import numpy as np
 cfg = full_config(1, {arch!r})
 rng = np.random.default_rng(0)
@@ -581,7 +578,7 @@ def startup_times(arch: str = "cpu") -> dict:
 
 def cached_bed(cfg, seed: int, cell_scale: float, folder: str | None):
     """:func:`paper_bed`, kept as NPZ in ``folder`` (when given) for reruns."""
-    from calendaring.config import with_overrides
+    from calendaring import with_overrides
 
     path = Path(folder) / f"full-bed-s{seed}-x{cell_scale:.4f}.npz" if folder else None
     if path is not None and path.exists():
@@ -600,7 +597,7 @@ TILES = {"20k": (2, 2), "100k": (4, 5), "1M": (14, 14)}  # tilings of the 5k bed
 
 
 def cmd_scaling(args) -> dict:
-    from calendaring.backend import init_taichi
+    from calendaring import init_taichi
 
     result = {"benchmark": "bench_dem scaling", "preset": "paper (full model)",
               "arch": args.arch, "threads": args.threads, "speed_m_s": args.speed}
@@ -649,9 +646,7 @@ def overhead_once(threads: int, steps: int, repeat: int) -> dict:
     """Steps/s of the Hertz-mode step on a one-particle bed: what a step costs beyond its
     arithmetic (the kernel launch from Python, the host's flag check and, with more than
     one thread, the thread pool's dispatch of each parallel loop)."""
-    from calendaring.backend import init_taichi
-    from calendaring.config import load_preset
-    from calendaring.simulation import Simulation
+    from calendaring import Simulation, init_taichi, load_preset
 
     init_taichi(arch="cpu", threads=threads)
     cfg = hertz_config(load_preset("paper"), threads)
@@ -699,9 +694,7 @@ def cmd_paper(args) -> dict:
     """A whole calendering run of a preset as a user starts it (``calendaring run``): the
     electrode built from scratch (settling, pre-compaction, relaxation), calendered with
     bonds and breakage, unloaded; wall time and steps/s of each stage from the run file."""
-    from calendaring.config import load_preset, with_overrides
-    from calendaring.run import CalenderRun
-    from calendaring.runfile import read_run
+    from calendaring import CalenderRun, load_preset, read_run, with_overrides
 
     cfg = with_overrides(load_preset(args.preset), {"numerics.threads": args.threads,
                                                     "numerics.arch": args.arch})
@@ -821,7 +814,7 @@ def main(argv=None) -> int:
                    "processor": platform.processor(), "cpus": os.cpu_count(),
                    "load_average": os.getloadavg(),
                    "date": time.strftime("%Y-%m-%d %H:%M:%S")})
-    from calendaring.fileio import write_json
+    from calendaring import write_json
 
     write_json(Path(args.out), result)
     print(json.dumps(result, indent=2, default=float))

@@ -1,7 +1,7 @@
 """Inverse calibration speed: default calibration, 64 restarts, posterior.
 
 Trains a surrogate with the paper's architecture on the synthetic stand-in dataset
-(:func:`calendaring.dataset.synthetic_dataset`; the speed of a calibration depends on the
+(:func:`calendaring.data.dataset.synthetic_dataset`; the speed of a calibration depends on the
 network's size, not on what it learned) unless ``--model MODEL.pt`` is given, then times on a
 held-out synthetic curve with its breakage centroid:
 
@@ -37,7 +37,7 @@ TARGETS_S = {"default_500x3": 10.0, "multistart_64": 60.0, "posterior": 120.0}
 
 def train_model(n_rows: int, epochs: int, members: int, seed: int):
     """A surrogate (paper architecture) trained on the synthetic dataset."""
-    from calendaring.dataset import synthetic_dataset
+    from calendaring import synthetic_dataset
     from surrogate import ModelConfig, SurrogateModel, TrainConfig, train, train_ensemble
 
     ds = synthetic_dataset(n=n_rows, seed=seed)
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
 
     import surrogate
-    from calendaring.dataset import synthetic_dataset
+    from calendaring import synthetic_dataset
     from inverse.calibrate import calibrate_target
     from inverse.optimise import OptimiserConfig
     from inverse.posterior import PosteriorConfig

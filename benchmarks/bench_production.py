@@ -71,7 +71,7 @@ def particle_steps(series: dict) -> float:
 
 def run_once(bed: Path, cell_um: float, seed: int, threads: int, overrides: list[str],
              folder: Path) -> dict:
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     out = folder / f"run-{cell_um:g}um-s{seed}.h5"
     cmd = _cli("run", "--preset", "sweep", "--seed", str(seed), "--threads", str(threads),
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
             runs.append(r)
     from bench_dem import _software  # this folder is on sys.path when run as a script
 
-    from calendaring.fileio import write_json
+    from calendaring import write_json
 
     result = {"benchmark": "bench_production", "runs": runs, "software": _software(),
               "python": sys.version.split()[0], "machine": platform.machine(),

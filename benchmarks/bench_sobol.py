@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 def make_model(members: int, seed: int = 0):
     """A paper-architecture surrogate trained for one epoch on synthetic data."""
     import surrogate
-    from calendaring.dataset import synthetic_dataset
+    from calendaring import synthetic_dataset
     from surrogate.api import SurrogateModel
     from surrogate.ensemble import train_ensemble
     from surrogate.train import TrainConfig

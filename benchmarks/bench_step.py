@@ -28,7 +28,7 @@ def prepare_dense_bed(cfg, n_am: int, n_cb: int, porosity: float, seed: int = 0,
                       prep_speed: float = 5.0):
     """Random loose bed of ``n_am`` + ``n_cb`` spheres from the size distributions of
     ``cfg``, pre-compacted to ``porosity`` (see :func:`compact_bed`)."""
-    from calendaring.electrode import sample_diameters
+    from calendaring import sample_diameters
 
     rng = np.random.default_rng(seed)
     sizes = cfg.electrode.sizes
@@ -47,9 +47,7 @@ def compact_bed(cfg, diam, mat, porosity: float, rng, prep_speed: float = 5.0,
 
     Returns (positions, radii, materials, velocities, plate height).
     """
-    from calendaring.config import with_overrides
-    from calendaring.electrode import random_insertion
-    from calendaring.simulation import Simulation
+    from calendaring import Simulation, random_insertion, with_overrides
 
     area = cfg.domain.cell_x * cfg.domain.cell_y
     z_dense = max((np.pi / 6) * np.sum(diam**3) / area / (1.0 - porosity), 1.5 * diam.max())
@@ -97,8 +95,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "bench_step.json"))
     args = ap.parse_args(argv)
 
-    from calendaring.config import SimConfig, with_overrides
-    from calendaring.simulation import Simulation
+    from calendaring import SimConfig, Simulation, with_overrides
 
     over = {"domain.cell_x": args.cell, "domain.cell_y": args.cell,
             "numerics.threads": args.threads, "numerics.track_energy": not args.no_energy,
@@ -117,7 +114,7 @@ def main(argv=None) -> int:
     pos, rad, mat, vel, z_top = prepare_dense_bed(cfg, args.n_am, args.n_cb, args.porosity, 0,
                                                   prep_speed=args.prep_speed)
     t_prep = time.perf_counter() - t0
-    from calendaring.run import pool_capacity
+    from calendaring import pool_capacity
 
     sim = Simulation(cfg, capacity=pool_capacity(cfg, rad, mat))
     try:

@@ -30,8 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring.dataset import read_dataset, synthetic_dataset
-from calendaring.fileio import write_json
+from calendaring import read_dataset, synthetic_dataset, write_json
 from surrogate.api import PRECISIONS, SurrogateModel
 from surrogate.evaluate import model_metrics, replicate_comparison
 from surrogate.losses import kl_per_row

@@ -28,8 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring.dataset import read_dataset
-from calendaring.fileio import write_json
+from calendaring import read_dataset, write_json
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.data import Normalisation

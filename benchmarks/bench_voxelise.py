@@ -78,7 +78,7 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     if args.run:
-        from calendaring.runfile import read_run
+        from calendaring import read_run
 
         record = read_run(args.run)
         snap = record.snapshots[args.snapshot]
@@ -128,7 +128,7 @@ def main(argv=None) -> int:
               f"{cpu:.1f} s CPU", file=sys.stderr)
     report["load_average_end"] = os.getloadavg()
     out = Path(args.out)
-    from calendaring.fileio import write_json
+    from calendaring import write_json
 
     write_json(out, report, indent=2)  # atomic; NaN -> null
     print(f"wrote {out}", file=sys.stderr)

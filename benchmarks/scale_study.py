@@ -10,7 +10,7 @@ largest cell the inertial numbers of ``--inertial`` (5e-3, then the paper's 1e-3
 resumes every case (finished runs are kept, runs in flight resume from their
 checkpoints), so the study survives a stop.
 
-``report`` reads the run files back (through ``calendaring.runfile.read_run``) and writes,
+``report`` reads the run files back (through ``calendaring.process.runfile.read_run``) and writes,
 per case: runs done, wall seconds per run (one thread), particles at start and end,
 breakage events per run, the top pressure at 5 / 10 / 15 / 19.5 um (mean and sd over
 seeds), the replicate variance of the 196-point curve in normalised units (resampled and
@@ -81,7 +81,7 @@ def sweep_command(case: dict, folder: Path, seed: int, workers: int, preset: str
 def cmd_run(args) -> int:
     from bench_dem import _software  # this folder is on sys.path when run as a script
 
-    from calendaring.fileio import write_json
+    from calendaring import write_json
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -121,8 +121,7 @@ def _num(v):
 
 def _runs(folder: Path) -> list[dict]:
     """The finished runs of one case: curve, histogram inputs, counts, wall seconds."""
-    from calendaring.runfile import RunFileError, read_run
-    from calendaring.sweep import read_manifest
+    from calendaring import RunFileError, read_manifest, read_run
 
     manifest = read_manifest(folder) if (folder / "manifest.json").exists() else {}
     walls = {Path(e.file).name: e.wall_time for e in manifest.values()
@@ -189,7 +188,7 @@ def pooled(folder: Path, dest: Path) -> list[dict]:
 
 def summarise(runs: list[dict], ref) -> dict:
     """Statistics of one case's runs (see the module docstring)."""
-    from calendaring.dataset import bin_events, kl_divergence, resample_pressure, smooth
+    from calendaring import bin_events, kl_divergence, resample_pressure, smooth
 
     n = len(runs)
     curves = []
@@ -231,7 +230,7 @@ def bias(case: dict, base: dict) -> dict:
     """Mean-curve and histogram differences of ``case`` against ``base``: z = |mean
     difference| / combined standard error per depth where both have two runs or more, else
     against the base's seed standard deviation alone (one run's difference in base sds)."""
-    from calendaring.dataset import kl_divergence
+    from calendaring import kl_divergence
 
     out = {}
     a, b = case["_curves"], base["_curves"]
@@ -274,8 +273,7 @@ def markdown(rows: list[dict]) -> str:
 
 
 def cmd_report(args) -> int:
-    from calendaring.dataset import read_dataset
-    from calendaring.fileio import write_json
+    from calendaring import read_dataset, write_json
 
     ref = read_dataset(args.reference)
     out = Path(args.out)

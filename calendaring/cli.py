@@ -1,6 +1,6 @@
 """Command line: ``calendaring run | inspect | plot | export``.
 
-Exit codes (the contract of :mod:`calendaring.cli_contract`, shared by the four programs):
+Exit codes (the contract of :mod:`calendaring.core.cli_contract`, shared by the four programs):
 0 success, 2 bad input (one line naming the key, the value and what is allowed; nothing
 written), 3 the simulation stopped on a guard (diagnostic printed; the last checkpoint is
 kept), 1 an internal error (a bug: traceback and a line saying so), 130 interrupted.
@@ -26,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.cli_contract import (
-    EXIT_BAD_INPUT,
+from calendaring.core.cli_contract import (
     EXIT_OK,
     ContractParser,
     input_file,
@@ -37,7 +36,7 @@ from calendaring.cli_contract import (
     real,
     run_cli,
 )
-from calendaring.config import (
+from calendaring.core.config import (
     ARCHES,
     PRESETS,
     SEED_MAX,
@@ -47,17 +46,15 @@ from calendaring.config import (
     parse_override,
     with_overrides,
 )
-from calendaring.errors import ConfigError
-from calendaring.preflight import DEFAULT_MAX_HOURS
-from calendaring.units import to_mpa, to_um
-
-_Parser = ContractParser
+from calendaring.core.errors import ConfigError
+from calendaring.core.units import to_mpa, to_um
+from calendaring.process.preflight import DEFAULT_MAX_HOURS
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = _Parser(prog="calendaring", description=__doc__.split("\n\n")[0],
+    ap = ContractParser(prog="calendaring", description=__doc__.split("\n\n")[0],
                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=ContractParser)
     r = sub.add_parser("run", help="run a calendering simulation into an HDF5 run file")
     _config_args(r)
     r.add_argument("--out", required=True, help="run file to write (.h5)")
@@ -153,7 +150,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _sweep_doc() -> str:
-    from calendaring import sweep
+    from calendaring.data import sweep
 
     return sweep.__doc__.split("Layout")[0]
 
@@ -162,7 +159,8 @@ def _config_args(r) -> None:
     r.add_argument("config", nargs="?", help="configuration TOML (or use --preset)")
     r.add_argument("--max-hours", type=real(0, lo_open=True, unit="h"),
                    default=DEFAULT_MAX_HOURS, help="refuse a run whose estimated wall time "
-                   f"is longer (default {DEFAULT_MAX_HOURS:g} h; see calendaring.preflight)")
+                   f"is longer (default {DEFAULT_MAX_HOURS:g} h; see "
+                   "calendaring.process.preflight)")
     r.add_argument("--preset", choices=PRESETS, help="a configuration shipped with the package")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value (dotted key, TOML value); repeatable")
@@ -196,7 +194,7 @@ def _run_config(args):
 
 def _preflight(cfg, args) -> None:
     """Refuse a run that would not fit the machine; print the estimate (stderr)."""
-    from calendaring.preflight import check
+    from calendaring.process.preflight import check
 
     est = check(cfg, max_hours=args.max_hours)
     if not args.quiet:
@@ -208,7 +206,7 @@ def cmd_run(args) -> int:
     out = output_path(args.out, "--out", suffixes=(".h5", ".hdf5"),
                       overwrite=args.overwrite or args.resume)
     _preflight(cfg, args)
-    from calendaring.run import CalenderRun
+    from calendaring.process.run import CalenderRun
 
     runner = CalenderRun(cfg, out, progress=not args.quiet, preset=args.preset or "")
     if args.resume and not runner.checkpoints():
@@ -223,14 +221,14 @@ def cmd_pack(args) -> int:
     cfg = _run_config(args)
     out = output_path(args.out, "--out", suffixes=(".csv",), overwrite=args.overwrite)
     _preflight(cfg, args)
-    from calendaring.run import build_packing
+    from calendaring.process.run import build_packing
 
     print(f"wrote {build_packing(cfg, out, progress=not args.quiet)}")
     return EXIT_OK
 
 
 def cmd_sweep(args) -> int:
-    from calendaring.sweep import SweepOptions, summary, sweep
+    from calendaring.data.sweep import SweepOptions, summary, sweep
 
     if bool(args.config) == bool(args.preset):
         raise ConfigError("config", args.config or args.preset,
@@ -256,14 +254,13 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_digest(args) -> int:
-    from calendaring.digest import digest_path, write_digest
-    from calendaring.runfile import RunFileError, read_run
+    from calendaring.data.digest import digest_path, run_files_dir, write_digest
+    from calendaring.process.runfile import RunFileError, read_run
 
     folder = input_folder(args.runs, "RUNS")
     output_path(folder / "digests", "RUNS/digests", folder=True)
-    run_dir = folder / "runs" if (folder / "runs").is_dir() else folder
     wrote = kept = 0
-    for path in sorted(run_dir.glob("*.h5")):
+    for path in sorted(run_files_dir(folder).glob("*.h5")):
         dest = digest_path(folder, path.stem)
         if dest.exists() and not args.overwrite:
             kept += 1
@@ -280,7 +277,7 @@ def cmd_digest(args) -> int:
 
 
 def cmd_dataset(args) -> int:
-    from calendaring.dataset import build_dataset, write_dataset
+    from calendaring.data.dataset import build_dataset, write_dataset
 
     input_folder(args.runs, "RUNS")
     out = output_path(args.out, "--out", suffixes=(".h5", ".hdf5"), overwrite=args.overwrite)
@@ -292,8 +289,8 @@ def cmd_dataset(args) -> int:
                        else None, progress=not args.quiet,
                        command="calendaring dataset " + " ".join(sys.argv[2:]))
     write_dataset(out, ds)
-    from calendaring.dataset import noise_floor, provenance_report
-    from calendaring.fileio import write_json
+    from calendaring.core.fileio import write_json
+    from calendaring.data.dataset import noise_floor, provenance_report
 
     prov = write_json(out.with_name(out.stem + ".provenance.json"),
                       provenance_report(args.runs, ds))
@@ -348,7 +345,7 @@ def _max_inertial(rec) -> float | None:
 
 
 def cmd_inspect(args) -> int:
-    from calendaring.runfile import read_run
+    from calendaring.process.runfile import read_run
 
     rec = read_run(args.run_file)
     s = summary(rec)
@@ -381,8 +378,8 @@ def cmd_inspect(args) -> int:
 
 
 def cmd_plot(args) -> int:
-    from calendaring.plots import plot_breakage, plot_microstructure, plot_pressure
-    from calendaring.runfile import read_run
+    from calendaring.process.plots import plot_breakage, plot_microstructure, plot_pressure
+    from calendaring.process.runfile import read_run
 
     rec = read_run(args.run_file)
     folder = Path(args.out_dir) if args.out_dir else rec.path.parent
@@ -401,8 +398,8 @@ def cmd_plot(args) -> int:
 def cmd_export(args) -> int:
     import numpy as np
 
-    from calendaring.packing import Packing, write_csv, write_lammps_data, write_vtk
-    from calendaring.runfile import read_run
+    from calendaring.process.packing import Packing, write_csv, write_lammps_data, write_vtk
+    from calendaring.process.runfile import read_run
 
     rec = read_run(args.run_file)
     if not 0 <= args.snapshot < len(rec.snapshots):
@@ -432,22 +429,23 @@ def cmd_export(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``calendaring`` command (exit codes: :mod:`calendaring.cli_contract`)."""
+    """Entry point of the ``calendaring`` command.
+
+    Exit codes: :mod:`calendaring.core.cli_contract`.
+    """
     from calendaring._version import __version__
+    from calendaring.data.dataset import DatasetError
+    from calendaring.process.packing import PackingError
+    from calendaring.process.runfile import RunFileError
 
-    try:
+    def handle() -> int:
         args = _parser().parse_args(argv)
-    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    handler = {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
-               "export": cmd_export, "pack": cmd_pack, "sweep": cmd_sweep,
-               "dataset": cmd_dataset, "digest": cmd_digest}[args.command]
-    from calendaring.dataset import DatasetError
-    from calendaring.packing import PackingError
-    from calendaring.runfile import RunFileError
+        return {"run": cmd_run, "inspect": cmd_inspect, "plot": cmd_plot,
+                "export": cmd_export, "pack": cmd_pack, "sweep": cmd_sweep,
+                "dataset": cmd_dataset, "digest": cmd_digest}[args.command](args)
 
-    return run_cli("calendaring", lambda: handler(args),
-                   (RunFileError, PackingError, DatasetError), __version__)
+    return run_cli("calendaring", handle, (RunFileError, PackingError, DatasetError),
+                   __version__)
 
 
 if __name__ == "__main__":

@@ -20,16 +20,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from calendaring.cli_contract import (
-    EXIT_BAD_INPUT,
+from calendaring import (
     EXIT_OK,
+    ConfigError,
     ContractParser,
+    integer,
     output_path,
     run_cli,
 )
-from calendaring.errors import ConfigError
-
-_Parser = ContractParser
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -37,9 +35,9 @@ def _parser() -> argparse.ArgumentParser:
     from inverse.posterior import PosteriorConfig
 
     pc = PosteriorConfig()
-    ap = _Parser(prog="inverse", description=__doc__.split("\n\n")[0],
+    ap = ContractParser(prog="inverse", description=__doc__.split("\n\n")[0],
                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=ContractParser)
     c = sub.add_parser("calibrate", help="infer the breakage parameters from a pressure curve")
     c.add_argument("--model", required=True, help="surrogate checkpoint (MODEL.pt)")
     c.add_argument("--target", required=True, help="CURVE.csv (units in the header) or RUN.h5")
@@ -71,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--profiles", choices=("slice", "optimised", "none"), default="slice",
                    help="loss profiles along each parameter (identifiability report)")
     c.add_argument("--seed", type=int, default=0, help="Sobol scrambling and MCMC seed")
-    c.add_argument("--threads", type=int, default=1,
+    c.add_argument("--threads", type=integer(1), default=1,
                    help="torch CPU threads (default 1: fastest for this small network)")
     c.add_argument("--no-plots", action="store_true", help="write no PNGs")
     c.add_argument("--quiet", action="store_true", help="no progress output")
@@ -105,7 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--no-distribution", action="store_true",
                    help="calibrate on the pressure curve only (no centroid term)")
     a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    a.add_argument("--threads", type=integer(1), default=1, help="torch CPU threads")
     a.add_argument("--quiet", action="store_true")
     return ap
 
@@ -223,7 +221,7 @@ def cmd_verify(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from calendaring.dataset import read_dataset
+    from calendaring import read_dataset
     from inverse.optimise import OptimiserConfig
     from inverse.posterior import PosteriorConfig
     from inverse.validate import validate_to_dir
@@ -253,24 +251,7 @@ def cmd_validate(args) -> int:
 
 def main(argv=None) -> int:
     """Entry point of the ``inverse`` console script; returns the exit code."""
-    from calendaring._version import __version__
-
-    try:
-        args = _parser().parse_args(argv)
-    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    handler = {"calibrate": cmd_calibrate, "verify": cmd_verify,
-               "validate": cmd_validate}[args.command]
-    if getattr(args, "threads", None) is not None:
-        if args.threads < 1:
-            print(f"inverse: error: --threads = {args.threads} is invalid: allowed an integer "
-                  ">= 1", file=sys.stderr)
-            return EXIT_BAD_INPUT
-        import torch
-
-        torch.set_num_threads(args.threads)
-    from calendaring.dataset import DatasetError
-    from calendaring.runfile import RunFileError
+    from calendaring import DatasetError, RunFileError, __version__
 
     bad = [DatasetError, RunFileError]
     try:
@@ -279,7 +260,17 @@ def main(argv=None) -> int:
         bad.append(CheckpointError)
     except ImportError:  # surrogate not installed: no checkpoint errors to catch
         pass
-    return run_cli("inverse", lambda: handler(args), tuple(bad), __version__)
+
+    def handle() -> int:
+        args = _parser().parse_args(argv)
+        if getattr(args, "threads", None) is not None:
+            import torch
+
+            torch.set_num_threads(args.threads)
+        return {"calibrate": cmd_calibrate, "verify": cmd_verify,
+                "validate": cmd_validate}[args.command](args)
+
+    return run_cli("inverse", handle, tuple(bad), __version__)
 
 
 if __name__ == "__main__":

@@ -90,7 +90,7 @@ def loss_profiles(loss: CompositeLoss, u_opt: np.ndarray, free: np.ndarray, name
         "flat": bool, "argmin_unit": ...}}, "flat": [names]}``.
     """
     if mode not in ("slice", "optimised"):
-        from calendaring.errors import ConfigError
+        from calendaring import ConfigError
 
         raise ConfigError("profile mode", mode, "'slice' or 'optimised'")
     free = np.asarray(free, bool)

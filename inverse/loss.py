@@ -12,7 +12,7 @@ For unit parameters ``u`` (rows in ``[0, 1]^8``) the loss is
 * ``L_c``: squared distance between the predicted distribution's centroid (load, diameter) and
   the target centroid, both axes scaled to ``[0, 1]`` by the model's bin edges (the load axis
   logarithmically when the edges are geometric), with the centroid of
-  :func:`calendaring.dataset.centroids`, here differentiable in torch;
+  :func:`calendaring.data.dataset.centroids`, here differentiable in torch;
 * ``L_b``: the boundary penalty ``mean_j [exp(-u_j / s) + exp(-(1 - u_j) / s)]`` over the free
   parameters, which grows exponentially as any parameter approaches 0 or 1 (``s`` =
   ``boundary_scale``).
@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 from inverse.targets import Target, bin_centres
 
 

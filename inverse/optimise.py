@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import torch
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 ADAM_FRACTION = 0.3  # paper 2.4: Adam for ~30 % of the iterations
 ADAM_LR = 0.05  # paper 2.4
@@ -79,7 +79,7 @@ class OptimiserConfig:
     @property
     def n_adam(self) -> int:
         """Adam steps: ``round(adam_fraction x iterations)``."""
-        return int(round(self.adam_fraction * self.iterations))
+        return round(self.adam_fraction * self.iterations)
 
     @property
     def n_lbfgs(self) -> int:

@@ -14,8 +14,8 @@ derivative of the cube-root normalisation at the observed pressure (delta method
 ``var_model_i`` is the surrogate's own predictive variance (``p_norm_var`` of
 ``torch_forward``: the ensemble spread; zero for a single model) plus
 ``model_error_sigma^2``, an optional constant surrogate error (e.g. the model's held-out RMSE
-in normalised units; a single model has no other way to admit its own error). With a target centroid, a
-Gaussian term on the scaled centroid coordinates (``centroid_sigma``) is added.
+in normalised units; a single model has no other way to admit its own error). With a target
+centroid, a Gaussian term on the scaled centroid coordinates (``centroid_sigma``) is added.
 
 Observation sigma: the target's own (CSV ``sigma_*`` column) or, without one,
 ``sigma_rel x P + sigma_abs_frac x max P`` (defaults 5 % and 1 %; documented, not measured).
@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 from inverse.targets import Target
 
 PRIOR_STD = 1.0 / np.sqrt(12.0)  # std of U(0, 1)
@@ -311,7 +311,7 @@ def plot_predictive(target: Target, predictive: dict, path, best_pressure=None,
     """Posterior-predictive band over the target (depth in um, pressure in MPa)."""
     import matplotlib.pyplot as plt
 
-    from calendaring.units import to_mpa, to_um
+    from calendaring import to_mpa, to_um
 
     d = to_um(np.asarray(predictive["depth_m"]))
     fig, ax = plt.subplots(figsize=(6, 4))

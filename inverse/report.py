@@ -2,7 +2,7 @@
 
 The result file (``format`` = "inverse-calibration", ``schema_version`` 1) is one JSON object,
 written atomically. Physical values are SI (percent for A and R_t, as in
-:data:`calendaring.params.PAPER_SPACE`), with the unit next to each value; unit-cube values
+:data:`calendaring.data.params.PAPER_SPACE`), with the unit next to each value; unit-cube values
 carry ``_unit`` in their key. Main keys: ``parameters`` (list in PAPER_SPACE order: name,
 symbol, unit, value, value_unit, fixed, ci90 when a posterior was sampled), ``loss``, ``fit``
 (errors of the surrogate at the optimum against the target, Pa), ``target`` (the resampled
@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.errors import ConfigError
-from calendaring.fileio import write_json as _write_json
+from calendaring import ConfigError
+from calendaring import write_json as _write_json
 
 FORMAT = "inverse-calibration"
 SCHEMA_VERSION = 1

@@ -8,11 +8,11 @@ centroid load [N], centroid diameter [m].
 
 Sources:
 
-* a run file (:func:`target_from_run`), read with :func:`calendaring.runfile.read_run`: the
+* a run file (:func:`target_from_run`), read with :func:`calendaring.process.runfile.read_run`: the
   top-plate trace is averaged over each depth interval of the model's grid that the trace
   covers (as the dataset builder does) and Savitzky-Golay smoothed (order 3, window 17,
   paper section 3.2); the breakage events are binned with the model's edges
-  (:func:`calendaring.dataset.bin_events`);
+  (:func:`calendaring.data.dataset.bin_events`);
 * a CSV file (:func:`target_from_csv`) whose header declares the units in the column names.
 
 CSV convention (comma separated, ``#`` starts a comment line, one header line)::
@@ -39,8 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.dataset import bin_events, centroids
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, bin_events, centroids
 
 DEPTH_UNITS = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "µm": 1e-6, "μm": 1e-6}
 PRESSURE_UNITS = {"pa": 1.0, "kpa": 1e3, "mpa": 1e6, "gpa": 1e9}
@@ -146,7 +145,7 @@ def bin_centres(load_edges, diameter_edges) -> tuple[np.ndarray, np.ndarray, boo
 
 def attach_distribution(target: Target, model) -> Target:
     """Fill ``target.centroids`` from ``target.distribution`` with the model's bin centres
-    (:func:`calendaring.dataset.centroids` semantics); checks the distribution's shape."""
+    (:func:`calendaring.data.dataset.centroids` semantics); checks the distribution's shape."""
     if target.distribution is None:
         return target
     h = np.asarray(target.distribution, float)
@@ -212,7 +211,7 @@ def smooth_valid(p: np.ndarray, valid: np.ndarray, window: int = SAVGOL_WINDOW,
 def target_from_run(path: str | Path, model, smooth: bool = True) -> Target:
     """Target from a run file: top-plate pressure over the covered model depths and the
     breakage events binned with the model's edges (no events: no distribution)."""
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     rec = read_run(path)
     d, p = np.asarray(rec.pressure["depth"], float), np.asarray(rec.pressure["value"], float)

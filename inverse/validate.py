@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 from inverse.calibrate import calibrate_target
 from inverse.optimise import OptimiserConfig
 from inverse.posterior import PosteriorConfig

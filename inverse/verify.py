@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 from inverse.report import read_result, write_json
 from inverse.targets import Target, interval_means, smooth_valid
 
@@ -47,7 +47,7 @@ def curve_from_run(path: str | Path, depth: np.ndarray, smooth: bool = True
                    ) -> tuple[np.ndarray, np.ndarray]:
     """A run file's top-plate pressure as interval means on ``depth`` (the model grid),
     smoothed as the targets are; returns (pressure [Pa] with NaN where not covered, mask)."""
-    from calendaring.runfile import read_run
+    from calendaring import read_run
 
     rec = read_run(path)
     p, covered = interval_means(rec.pressure["depth"], rec.pressure["value"], depth)
@@ -72,7 +72,7 @@ def plot_overlay(target: Target, curves: list[dict], path, prediction=None):
     """Target, surrogate prediction and DEM curves (depth in um, pressure in MPa)."""
     import matplotlib.pyplot as plt
 
-    from calendaring.units import to_mpa, to_um
+    from calendaring import to_mpa, to_um
 
     fig, ax = plt.subplots(figsize=(6, 4))
     v = target.valid

@@ -11,7 +11,7 @@
 #
 # **Purpose.** The shortest path through the engine: build and calender the `tiny` preset
 # (a 25 x 25 um cell, 25 um coating, 6.5 um stroke, Tavares breakage on) from Python, read
-# the run file back with `calendaring.runfile.read_run`, plot the pressure-depth curve and
+# the run file back with `calendaring.process.runfile.read_run`, plot the pressure-depth curve and
 # print a summary.
 #
 # **Inputs.** None (the preset ships with the package). Outputs go to
@@ -29,12 +29,16 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import calendaring
-from calendaring.cli import summary
-from calendaring.config import load_preset
-from calendaring.plots import notebook_output, show_figure
-from calendaring.run import run
-from calendaring.runfile import read_run
-from calendaring.units import to_mpa, to_um
+from calendaring import (
+    load_preset,
+    notebook_output,
+    read_run,
+    run,
+    show_figure,
+    summary,
+    to_mpa,
+    to_um,
+)
 
 OUT = notebook_output("00_quickstart")
 print(f"calendaring {calendaring.__version__}; outputs in {OUT}")

@@ -10,13 +10,13 @@
 # # 10 Contact-law validation: EEPA loop and coefficient of restitution
 #
 # **Purpose.** Check the Edinburgh Elasto-Plastic Adhesive (EEPA) normal contact law of
-# `calendaring.laws.eepa` (paper Eqs. 3-11, physics-spec section 2) against its analytic
+# `calendaring.engine.laws.eepa` (paper Eqs. 3-11, physics-spec section 2) against its analytic
 # properties, and the DEM engine's binary collisions against the restitution they are set to:
 #
 # 1. a loading / unloading / reloading force-overlap loop with plasticity and adhesion for
 #    the paper's CB-CB and AM-AM pairs: plastic overlap `delta_p = lambda_p^(1/n) delta_max`,
 #    pull-off force `1.5 pi Dgamma sqrt(R* delta_p)` (spec 2.3) and the loop's work ratio;
-# 2. head-on collisions of two AM spheres run by `calendaring.simulation.Simulation`:
+# 2. head-on collisions of two AM spheres run by `calendaring.engine.simulation.Simulation`:
 #    with lambda_p = 0 the damping law (`tangent_sqrt56`, spec 2.4) is built to give exactly
 #    the target restitution; with plasticity and no damping the analytic restitution is
 #    `sqrt(W_unload / W_load)` of the law's own loop (integrated here from the law).
@@ -35,12 +35,18 @@ import time
 import matplotlib.pyplot as plt
 import numpy as np
 
-from calendaring.backend import init_taichi
-from calendaring.config import SimConfig, load_config_dict, pair_key
-from calendaring.contact_params import damping_ratio, reduced_modulus
-from calendaring.laws import eepa
-from calendaring.plots import notebook_output, show_figure
-from calendaring.simulation import Simulation
+from calendaring import (
+    SimConfig,
+    Simulation,
+    damping_ratio,
+    eepa,
+    init_taichi,
+    load_config_dict,
+    notebook_output,
+    pair_key,
+    reduced_modulus,
+    show_figure,
+)
 
 OUT = notebook_output("10_contact_law")
 init_taichi(arch="cpu", precision="f64")  # the settings Simulation uses by default
@@ -52,10 +58,10 @@ print(f"loading exponent n = {N}, adhesive exponent chi = {CHI}, adhesion mode "
 
 # %% [markdown]
 # ## 1. Force-overlap loop
-# The laws are Taichi functions (`@ti.func`); `calendaring.laws.eepa.evaluate` maps the
+# The laws are Taichi functions (`@ti.func`); `calendaring.engine.laws.eepa.evaluate` maps the
 # engine's own functions over NumPy overlaps. Without `delta_max` the contact history is the
 # running maximum of the path, as in the engine. `k2 = k1 / (1 - lambda_p)` is the law's
-# definition (module docstring of `calendaring.laws.eepa`).
+# definition (module docstring of `calendaring.engine.laws.eepa`).
 
 # %%
 def law_on_path(path, e_star, r_star, lam, gamma):

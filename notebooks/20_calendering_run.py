@@ -15,7 +15,7 @@
 # shear, removed with a broken particle), side views of the bed at the snapshot depths
 # (paper Fig. 1), the bond network by state (Fig. 6) and the particle-scale normal force
 # against AM diameter (Fig. 7). Everything is read from the run file's datasets through
-# `calendaring.runfile.read_run`.
+# `calendaring.process.runfile.read_run`.
 #
 # **Inputs.** None: the run is made here (`tiny` preset, seed 0; outputs in
 # `notebooks/_out/20_calendering_run/` or `$CALENDARING_NOTEBOOK_OUT`).
@@ -33,11 +33,7 @@ import numpy as np
 from matplotlib.collections import LineCollection
 
 from analysis.render import BOND_COLOURS, bond_segments
-from calendaring.config import load_preset
-from calendaring.plots import notebook_output, show_figure
-from calendaring.run import run
-from calendaring.runfile import read_run
-from calendaring.units import to_mpa, to_um
+from calendaring import load_preset, notebook_output, read_run, run, show_figure, to_mpa, to_um
 
 OUT = notebook_output("20_calendering_run")
 

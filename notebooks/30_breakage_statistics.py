@@ -14,7 +14,7 @@
 # exactly as the dataset builder bins it for the surrogate: log load axis, edges over the
 # events, probabilities summing to 1, with its centroid), breakage events against depth,
 # and the fragment size distribution. All from the run file's `breakage/` datasets
-# (one row per event, one row per fragment) through `calendaring.runfile.read_run`.
+# (one row per event, one row per fragment) through `calendaring.process.runfile.read_run`.
 #
 # **Inputs.** None: the run is made here (`tiny` preset, seed 0). The reference dataset
 # `data/reference.h5` is read only for its global histogram edges (the surrogate's bins).
@@ -33,12 +33,19 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 import calendaring
-from calendaring.config import load_preset
-from calendaring.dataset import bin_centres, bin_events, centroids, histogram_edges, read_dataset
-from calendaring.plots import notebook_output, show_figure
-from calendaring.run import run
-from calendaring.runfile import read_run
-from calendaring.units import to_um
+from calendaring import (
+    bin_centres,
+    bin_events,
+    centroids,
+    histogram_edges,
+    load_preset,
+    notebook_output,
+    read_dataset,
+    read_run,
+    run,
+    show_figure,
+    to_um,
+)
 
 ROOT = Path(calendaring.__file__).resolve().parents[1]
 OUT = notebook_output("30_breakage_statistics")

@@ -15,7 +15,7 @@
 # histories, the PCA convergence figure (paper Fig. 5), the loss table (Table 3) and errors
 # in MPa on the held-out test split.
 #
-# **Inputs.** `data/reference.h5` (the reference dataset; `calendaring.dataset.read_dataset`
+# **Inputs.** `data/reference.h5` (the reference dataset; `calendaring.data.dataset.read_dataset`
 # checks its schema): 300 DEM runs of the `sweep` preset (`data/README.md`); the numbers
 # printed here are whatever that file gives.
 # Outputs (figures, the model checkpoint) in `notebooks/_out/40_surrogate/` (or
@@ -36,8 +36,7 @@ import torch
 from IPython.display import Image, Markdown, display
 
 import calendaring
-from calendaring.dataset import noise_floor, read_dataset
-from calendaring.plots import notebook_output
+from calendaring import noise_floor, notebook_output, read_dataset
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 import surrogate  # noqa: E402

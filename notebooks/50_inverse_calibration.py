@@ -35,9 +35,7 @@ import torch
 from IPython.display import Image, display
 
 import calendaring
-from calendaring.dataset import read_dataset
-from calendaring.plots import notebook_output
-from calendaring.units import to_mpa
+from calendaring import notebook_output, read_dataset, to_mpa
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 from inverse.calibrate import calibrate_target  # noqa: E402

@@ -35,8 +35,7 @@ import torch
 from IPython.display import Image, display
 
 import calendaring
-from calendaring.dataset import read_dataset
-from calendaring.plots import notebook_output
+from calendaring import notebook_output, read_dataset
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 from analysis.outputs import OUTPUTS  # noqa: E402

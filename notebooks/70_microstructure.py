@@ -34,11 +34,7 @@ import matplotlib.pyplot as plt
 import torch
 from IPython.display import Image, Markdown, display
 
-from calendaring.config import load_preset
-from calendaring.plots import notebook_output, show_figure
-from calendaring.run import run
-from calendaring.runfile import read_run
-from calendaring.units import to_um
+from calendaring import load_preset, notebook_output, read_run, run, show_figure, to_um
 
 warnings.filterwarnings("ignore", message="IProgress not found")  # tqdm in a bare kernel
 from analysis.microstructure import (  # noqa: E402

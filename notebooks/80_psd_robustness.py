@@ -50,9 +50,7 @@ from analysis.compare import (
     run_summary,
     target_snapshots,
 )
-from calendaring.plots import notebook_output
-from calendaring.runfile import read_run
-from calendaring.units import to_mpa, to_um
+from calendaring import notebook_output, read_run, to_mpa, to_um
 
 OUT = notebook_output("80_psd_robustness")
 (OUT / "runs").mkdir(parents=True, exist_ok=True)

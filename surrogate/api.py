@@ -6,7 +6,7 @@
     >>> pred.pressure.shape, pred.distribution.shape         # (2, 196) [Pa], (2, 30, 30)
 
 Physical parameter values are validated against the checkpoint's
-:class:`~calendaring.params.ParameterSpace` (:class:`ConfigError` naming the key, the value
+:class:`~calendaring.data.params.ParameterSpace` (:class:`ConfigError` naming the key, the value
 and the allowed range). Pressures come back in Pa, distributions as probabilities
 [load bin, diameter bin]; an ensemble adds the member spread (``*_std``).
 """
@@ -21,9 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring.dataset import Dataset, bin_centres
-from calendaring.errors import ConfigError
-from calendaring.params import ParameterSpace
+from calendaring import ConfigError, Dataset, ParameterSpace, bin_centres
 from surrogate.checkpoint import (
     CheckpointError,
     info_to_json,

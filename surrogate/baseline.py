@@ -23,7 +23,7 @@ from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import threadpool_limits
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 
 class PCAGPBaseline:

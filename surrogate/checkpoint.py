@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring._version import __version__
+from calendaring import __version__
 
 FORMAT = "calendaring-surrogate"
 CHECKPOINT_VERSION = 1

@@ -17,15 +17,14 @@ import sys
 import time
 from pathlib import Path
 
-from calendaring.cli_contract import (
-    EXIT_BAD_INPUT,
+from calendaring import (
     EXIT_OK,
+    ConfigError,
     ContractParser,
+    DatasetError,
     output_path,
     run_cli,
 )
-from calendaring.dataset import DatasetError
-from calendaring.errors import ConfigError
 from surrogate.checkpoint import CheckpointError, json_default
 
 
@@ -39,7 +38,7 @@ def _set_threads(n: int | None) -> None:
 
 
 def cmd_train(args) -> int:
-    from calendaring.dataset import read_dataset
+    from calendaring import read_dataset
     from surrogate.api import SurrogateModel
     from surrogate.ensemble import train_ensemble
     from surrogate.evaluate import loss_table_markdown, model_metrics, summary_lines
@@ -80,7 +79,7 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from calendaring.dataset import read_dataset
+    from calendaring import read_dataset
     from surrogate.api import load
     from surrogate.evaluate import evaluate, summary_lines
 
@@ -120,7 +119,7 @@ def parse_params(items: list[str]) -> dict[str, list[float]]:
 
 
 def cmd_predict(args) -> int:
-    from calendaring.dataset import centroids
+    from calendaring import centroids
     from surrogate.api import load
     from surrogate.evaluate import STROKE_FRACTIONS, stroke_index
 
@@ -229,17 +228,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``surrogate`` command (exit codes: :mod:`calendaring.cli_contract`)."""
-    from calendaring._version import __version__
+    """Entry point of the ``surrogate`` command.
+
+    Exit codes: :mod:`calendaring.core.cli_contract`.
+    """
+    from calendaring import __version__
 
     argv = list(sys.argv[1:] if argv is None else argv)
-    try:
+
+    def handle() -> int:
         args = build_parser().parse_args(argv)
-    except SystemExit as exc:  # usage errors (2) and --help (0) as return codes
-        return int(exc.code) if isinstance(exc.code, int) else EXIT_BAD_INPUT
-    args.argv = argv
-    return run_cli("surrogate", lambda: args.func(args), (DatasetError, CheckpointError),
-                   __version__)
+        args.argv = argv
+        return args.func(args)
+
+    return run_cli("surrogate", handle, (DatasetError, CheckpointError), __version__)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Training data for the surrogate: splits, normalisation and a torch ``Dataset``.
 
 The inputs are the eight parameters scaled to ``[0, 1]`` by the dataset's
-:class:`~calendaring.params.ParameterSpace`; the targets are the smoothed pressure in
+:class:`~calendaring.data.params.ParameterSpace`; the targets are the smoothed pressure in
 normalised cube-root units (paper section 2.3) and the 30 x 30 breakage histogram.
 
 The normalisation statistics (``cbrt_min``, ``cbrt_max`` [Pa^(1/3)]) are fitted on the
@@ -20,8 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from calendaring.dataset import Dataset
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, Dataset
 
 TRAIN_ROLES_DEFAULT = ("train",)
 
@@ -112,7 +111,7 @@ def has_events(ds: Dataset) -> np.ndarray:
 
 
 class SurrogateDataset(torch.utils.data.Dataset):
-    """Rows of a :class:`~calendaring.dataset.Dataset` as float32 tensors.
+    """Rows of a :class:`~calendaring.data.dataset.Dataset` as float32 tensors.
 
     Items are ``(u (8,), p_norm (196,), dist (30, 30), kl_weight ())``: unit parameters,
     pressure normalised with ``norm``, the histogram, and 1.0 for rows with events (0.0 for
@@ -131,9 +130,9 @@ class SurrogateDataset(torch.utils.data.Dataset):
     @classmethod
     def from_file(cls, path, norm: Normalisation, rows: np.ndarray | None = None
                   ) -> SurrogateDataset:
-        """Read a dataset file (:func:`calendaring.dataset.read_dataset`, which raises
+        """Read a dataset file (:func:`calendaring.data.dataset.read_dataset`, which raises
         ``DatasetError`` naming a missing dataset) and wrap ``rows`` of it."""
-        from calendaring.dataset import read_dataset
+        from calendaring import read_dataset
 
         return cls(read_dataset(path), norm, rows)
 

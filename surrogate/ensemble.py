@@ -15,8 +15,7 @@ from dataclasses import replace
 
 import torch
 
-from calendaring.dataset import Dataset
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, Dataset
 from surrogate.model import DualBranchMLP, ModelConfig
 from surrogate.train import TrainConfig, TrainResult, make_split, train
 

@@ -7,9 +7,9 @@
   differs, every ``train`` row: pressure MSE in the paper's normalised cube-root units
   (the model's own normalisation), MSE / RMSE / MAE in Pa, relative error at 25/50/75/100 %
   of the stroke; distribution KL (1e-8 floor) and centroid errors
-  (:func:`calendaring.dataset.centroids`); ensemble spread and 2-sigma coverage;
+  (:func:`calendaring.data.dataset.centroids`); ensemble spread and 2-sigma coverage;
 - the replicate groups: model error against each replicate next to the run-to-run noise
-  floor (:func:`calendaring.dataset.noise_floor`; the pressure floor recomputed in the
+  floor (:func:`calendaring.data.dataset.noise_floor`; the pressure floor recomputed in the
   model's normalisation), with their ratios;
 - the PCA + GP baseline (:mod:`surrogate.baseline`) on the same rows;
 - repeated K-fold cross-validation of the MLP and the baseline (normalisation refitted on
@@ -32,9 +32,15 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from calendaring.dataset import Dataset, centroids, kl_divergence, noise_floor
-from calendaring.errors import ConfigError
-from calendaring.fileio import save_figure, write_text
+from calendaring import (
+    ConfigError,
+    Dataset,
+    centroids,
+    kl_divergence,
+    noise_floor,
+    save_figure,
+    write_text,
+)
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.checkpoint import json_default
@@ -148,9 +154,9 @@ def replicate_comparison(model: SurrogateModel, ds: Dataset) -> dict | None:
     per-point replicate variance, ddof 1, in the model's normalisation: what a perfect mean
     predictor scores, times n/(n-1)). Distribution: mean KL(replicate || prediction) and
     the floor mean KL(replicate || group's pooled histogram) from
-    :func:`calendaring.dataset.noise_floor`, with ``kl_perfect_model_ratio``: the multiple
+    :func:`calendaring.data.dataset.noise_floor`, with ``kl_perfect_model_ratio``: the multiple
     of that floor a model predicting the true distribution would score (events drawn
-    independently; :func:`calendaring.dataset.sampled_kl_floor`). None without a group of
+    independently; :func:`calendaring.data.dataset.sampled_kl_floor`). None without a group of
     >= 2 runs.
     """
     groups = [g for g in sorted(set(int(g) for g in ds.group if g >= 0))

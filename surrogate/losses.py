@@ -4,7 +4,7 @@
 ``w_d = 0.3`` (Table 3's totals equal 0.7 MSE + 0.3 KL exactly). The MSE is the mean over
 all rows and depths in normalised cube-root units. The KL is summed over the 900 bins and
 averaged over rows, both histograms floored at 1e-8 and renormalised first, the same
-quantity as :func:`calendaring.dataset.kl_divergence`. Rows without breakage events
+quantity as :func:`calendaring.data.dataset.kl_divergence`. Rows without breakage events
 (``kl_weight = 0``) are left out of the KL mean.
 """
 
@@ -15,8 +15,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from calendaring.dataset import KL_FLOOR
-from calendaring.errors import ConfigError
+from calendaring import KL_FLOOR, ConfigError
 
 MSE_WEIGHT = 0.7  # paper, Table 3
 KL_WEIGHT = 0.3

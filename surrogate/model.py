@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from calendaring.errors import ConfigError
+from calendaring import ConfigError
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

@@ -24,8 +24,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from calendaring.dataset import Dataset
-from calendaring.errors import ConfigError
+from calendaring import ConfigError, Dataset
 from surrogate.data import (
     TRAIN_ROLES_DEFAULT,
     Normalisation,

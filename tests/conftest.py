@@ -1,7 +1,7 @@
 """Shared pytest fixtures: start the Taichi runtime once per test session (f64, seed 0).
 
 The backend is chosen by ``CALENDARING_TEST_ARCH`` ("cpu" by default, "cuda" or "auto").
-Every :class:`~calendaring.simulation.Simulation` a test builds then runs on that backend,
+Every :class:`~calendaring.engine.simulation.Simulation` a test builds then runs on that backend,
 whatever its configuration's ``numerics.arch`` says: a process holds one Taichi runtime, and
 the tests' configurations leave ``numerics.arch`` at its default, "cpu".
 """
@@ -10,8 +10,8 @@ import os
 
 import pytest
 
-import calendaring.simulation as _simulation
-from calendaring.backend import init_taichi
+import calendaring.engine.simulation as _simulation
+from calendaring.engine.backend import init_taichi
 
 TEST_ARCH = os.environ.get("CALENDARING_TEST_ARCH", "cpu")
 

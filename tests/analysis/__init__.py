@@ -1,5 +1,5 @@
 """Tests of the analysis package. ``write_small_run`` writes a tiny run file through the
-project's own writer (``calendaring.runfile.write_run``), so analysis code can be tested
+project's own writer (``calendaring.process.runfile.write_run``), so analysis code can be tested
 through ``read_run`` without running the DEM engine."""
 
 from pathlib import Path
@@ -10,8 +10,8 @@ import numpy as np
 def write_small_run(path: str | Path, seed: int = 0) -> Path:
     """A run file of the ``tiny`` preset (25 x 25 um cell) with two snapshots of 40 random
     spheres (30 AM, 10 CB) between plates 25 and 20 um apart, each with a few bonds."""
-    from calendaring.config import load_preset
-    from calendaring.runfile import BONDS, BREAKAGE, FRAGMENTS, SERIES_UNITS, write_run
+    from calendaring.core.config import load_preset
+    from calendaring.process.runfile import BONDS, BREAKAGE, FRAGMENTS, SERIES_UNITS, write_run
 
     cfg = load_preset("tiny")
     rng = np.random.default_rng(seed)

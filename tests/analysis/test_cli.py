@@ -9,7 +9,7 @@ import pytest
 
 import analysis.cli as cli
 from analysis.cli import main, parse_power_of_two
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
 from tests.analysis.test_sensitivity import AnalyticSurrogate
 
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from analysis.compare import PSD_CASES, TABLE5, compare, plan, run_command
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
 
 TINY_SETS = ["protocol.stroke=1.3e-6", "protocol.snapshot_depths=[0.0, 1.3e-6]",
              "numerics.threads=1"]
@@ -61,7 +61,7 @@ def tiny_r0r1(tmp_path_factory):
 def test_r0_r1_tiny_share_packing_until_first_breakage(tiny_r0r1):
     """Slow (two tiny DEM runs): R0 and R1 from one seed are identical up to R1's first
     breakage event and differ after it."""
-    from calendaring.runfile import read_run
+    from calendaring.process.runfile import read_run
 
     out, rep = tiny_r0r1
     assert rep["failures"] == []

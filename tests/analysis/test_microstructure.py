@@ -15,8 +15,8 @@ from analysis.microstructure import (
     solve_tortuosity,
     voxelise,
 )
-from calendaring.errors import ConfigError
-from calendaring.runfile import Snapshot
+from calendaring.core.errors import ConfigError
+from calendaring.process.runfile import Snapshot
 
 torch.set_num_threads(1)
 
@@ -28,7 +28,7 @@ def sphere_volume(r):
 
 
 def make_snapshot(position, radius, material, z_bottom, z_top, index=0, depth=0.0):
-    """A ``calendaring.runfile.Snapshot`` built in memory (no run file needed)."""
+    """A ``calendaring.process.runfile.Snapshot`` built in memory (no run file needed)."""
     n = len(radius)
     zeros = np.zeros(n)
     return Snapshot(index=index, label=str(index), depth=depth, step=0, time=0.0,

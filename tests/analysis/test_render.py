@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from analysis.render import RenderError, bond_segments, render_bonds, render_particles
-from calendaring.errors import ConfigError
-from calendaring.runfile import read_run
+from calendaring.core.errors import ConfigError
+from calendaring.process.runfile import read_run
 from tests.analysis import write_small_run
 
 

@@ -26,9 +26,9 @@ from analysis.sensitivity import (
     sobol_study,
     surrogate_model,
 )
-from calendaring.dataset import synthetic_dataset
-from calendaring.errors import ConfigError
-from calendaring.params import PAPER_SPACE
+from calendaring.core.errors import ConfigError
+from calendaring.data.dataset import synthetic_dataset
+from calendaring.data.params import PAPER_SPACE
 
 IE, ID0, IPHI, ISIG = 1, 2, 3, 4  # e_inf, d0, phi, sigma_e columns of PAPER_SPACE
 

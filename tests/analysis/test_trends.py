@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from analysis.trends import held_point, sweep, trends_study
-from calendaring.errors import ConfigError
-from calendaring.params import PAPER_SPACE
+from calendaring.core.errors import ConfigError
+from calendaring.data.params import PAPER_SPACE
 from tests.analysis.test_sensitivity import ID0, IE, AnalyticSurrogate
 
 W = np.array([1.0, -2.0, 3.0, 0.5, 0.0, 4.0, -1.0, 2.0])

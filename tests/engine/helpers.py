@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from calendaring.config import load_config_dict
-from calendaring.simulation import Simulation
+from calendaring.core.config import load_config_dict
+from calendaring.engine.simulation import Simulation
 
 
 def frictionless_pair(restitution=0.5, plasticity=0.0, friction=0.0, rolling=0.0,

@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from calendaring import breakage as bk
-from calendaring.config import load_config_dict
-from calendaring.forces import L_HYST
-from calendaring.simulation import Simulation
+from calendaring.core.config import load_config_dict
+from calendaring.engine import breakage as bk
+from calendaring.engine.kernels.constants import L_HYST
+from calendaring.engine.simulation import Simulation
 
 
 def _cfg():

@@ -11,8 +11,8 @@ tests/system/test_threads.py (each thread count needs its own process).
 import numpy as np
 import pytest
 
-from calendaring.errors import SimulationError
-from calendaring.simulation import Simulation
+from calendaring.core.errors import SimulationError
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair, random_gas
 
 
@@ -93,7 +93,7 @@ def test_workers_that_cannot_all_start_fall_back_to_one_launch_per_step(caplog):
     sim.add_particles(pos, rad, np.zeros(len(rad), int), velocity=vel)
     sim.set_top_plate(z=60e-6, velocity=-5.0)
     try:
-        with caplog.at_level("WARNING", logger="calendaring.simulation"):
+        with caplog.at_level("WARNING", logger="calendaring.engine.simulation"):
             sim.run(600)
         assert not sim._burst_ok
         assert any("did not all start" in r.message for r in caplog.records)

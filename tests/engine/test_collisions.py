@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from calendaring.contact_params import reduced_modulus
-from calendaring.simulation import Simulation
+from calendaring.engine.contact_params import reduced_modulus
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair
 
 R = 3.87e-6  # AM radius [m]
@@ -53,7 +53,7 @@ def test_restitution_linear_eepa_paper_eq10(e):
 def test_restitution_without_sqrt56_factor_is_wrong_as_documented():
     # spec T2: plugging k1 literally (no sqrt(5/6), no tangent stiffness) misses the target
     cfg = frictionless_pair(restitution=0.25)
-    from calendaring.config import with_overrides
+    from calendaring.core.config import with_overrides
     cfg = with_overrides(cfg, {"contact.damping_mode": "literal_k1"})
     e_out, _, _ = _collide(cfg, 1.0)
     assert abs(e_out - 0.25) > 0.02
@@ -63,7 +63,7 @@ def test_hertz_contact_duration_and_peak_overlap():
     v0 = 0.5
     e_out, steps, dt = _collide(frictionless_pair(restitution=1.0), v0, block=2)
     assert e_out == pytest.approx(1.0, abs=1e-3)
-    from calendaring.config import SimConfig
+    from calendaring.core.config import SimConfig
     am = SimConfig().materials["AM"]
     e_star = reduced_modulus(am, am)
     r_star = R / 2

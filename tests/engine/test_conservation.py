@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from calendaring.config import load_config_dict
-from calendaring.simulation import Simulation
+from calendaring.core.config import load_config_dict
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair, random_gas
 
 
@@ -54,7 +54,8 @@ def test_energy_conserved_elastic_frictionless_gas():
             sim.run(1000)
             ledger.append(sim.energy())
         kin0 = e0["kinetic"]
-        n_coll = sum(1 for e in ledger if e["elastic"] > 0) + int(ledger[-1]["hysteretic_work"] != 0)
+        n_coll = (sum(1 for e in ledger if e["elastic"] > 0)
+                  + int(ledger[-1]["hysteretic_work"] != 0))
         assert n_coll > 0, "no collision happened; the test would be empty"
         for e in ledger:
             assert e["kinetic"] + e["elastic"] == pytest.approx(kin0, rel=2e-4)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from calendaring.errors import SimulationError
-from calendaring.simulation import Simulation
+from calendaring.core.errors import SimulationError
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair
 
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from calendaring.errors import SimulationError
-from calendaring.simulation import Simulation
+from calendaring.core.errors import SimulationError
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair
 
 
@@ -103,8 +103,8 @@ def test_pair_table_growth_keeps_every_contact_history():
 
 @ti.kernel
 def _spawn(pool: ti.template(), n: ti.i32, radius: ti.f64):
-    for k in range(n):
-        slot, new_id = pool.allocate_slot()
+    for _k in range(n):
+        slot, _new_id = pool.allocate_slot()
         if slot >= 0:
             pool.alive[slot] = 1
             pool.radius[slot] = radius

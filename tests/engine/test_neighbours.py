@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from calendaring.config import load_config_dict
-from calendaring.contacts import brute_force_pairs
-from calendaring.simulation import Simulation
+from calendaring.core.config import load_config_dict
+from calendaring.engine.contacts import brute_force_pairs
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import random_gas
 
 
@@ -76,7 +76,7 @@ def test_pair_capacity_overflow_grows_table_and_keeps_every_pair():
 
 
 def test_cell_smaller_than_two_cutoffs_is_rejected():
-    from calendaring.errors import ConfigError
+    from calendaring.core.errors import ConfigError
     cfg = load_config_dict({"domain": {"cell_x": 12e-6, "cell_y": 40e-6, "height": 40e-6}})
     sim = Simulation(cfg, capacity=10)
     try:
@@ -91,7 +91,7 @@ def test_cell_smaller_than_two_cutoffs_is_rejected():
 def test_blocked_exclusive_scan_equals_cumsum(n):
     import taichi as ti
 
-    from calendaring.neighbours import exclusive_scan, scan_blocks
+    from calendaring.engine.neighbours import exclusive_scan, scan_blocks
 
     cap = 1024
     fb = ti.FieldsBuilder()

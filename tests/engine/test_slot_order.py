@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from calendaring.contacts import brute_force_pairs
-from calendaring.errors import ConfigError
-from calendaring.neighbours import space_filling_order
-from calendaring.simulation import Simulation
+from calendaring.core.errors import ConfigError
+from calendaring.engine.contacts import brute_force_pairs
+from calendaring.engine.neighbours import space_filling_order
+from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair, random_gas
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from calendaring.runfile import BREAKAGE, FRAGMENTS, SERIES_UNITS, write_run
+from calendaring.process.runfile import BREAKAGE, FRAGMENTS, SERIES_UNITS, write_run
 
 
 @pytest.fixture(autouse=True, scope="session")
@@ -16,7 +16,7 @@ def _one_thread():
 
 def write_fake_run(path, depth, pressure, loads=(), diameters=(), preset="tiny", seed=0):
     """A schema-valid run file with the given top-plate trace and breakage events (no DEM)."""
-    from calendaring.config import load_preset
+    from calendaring.core.config import load_preset
 
     cfg = load_preset(preset)
     n = len(depth)

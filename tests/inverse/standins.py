@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from calendaring.params import PAPER_SPACE
+from calendaring.data.params import PAPER_SPACE
 
 STROKE = 19.5e-6  # m
 N_POINTS = 196

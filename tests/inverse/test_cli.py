@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import inverse.cli as cli
-from calendaring.params import PAPER_SPACE
+from calendaring.data.params import PAPER_SPACE
 from inverse.report import TABLE4, read_result
 from inverse.verify import run_command, verify
 from tests.inverse.conftest import write_fake_run
@@ -71,7 +71,7 @@ def test_table4_layout(calibrated):
 
     res = read_result(calibrated[1])
     text = format_table4(res)
-    for name, (label, _) in TABLE4.items():
+    for _name, (label, _) in TABLE4.items():
         assert label in text
     line = next(x for x in text.splitlines() if x.startswith("E50 parameter, d0"))
     assert "μm" in line and f"{res['parameters'][2]['display_value']:.3f}" in line
@@ -84,7 +84,7 @@ def test_table4_layout(calibrated):
     (["--iterations", "1"], "--iterations"),
 ])
 def test_bad_arguments_exit_2(calibrated, capsys, args, needle):
-    _, out, d = calibrated
+    _, _out, d = calibrated
     rc = cli.main(["calibrate", "--model", str(d / "model.pt"), "--target", str(d / "curve.csv"),
                    "--out", str(d / "bad.json"), "--quiet", *args])
     assert rc == 2
@@ -111,7 +111,7 @@ def test_run_command_sets_every_parameter():
     assert "breakage.d0=9.396e-06" in sets and "breakage.e_inf=2161.0" in sets
     assert cmd[cmd.index("--seed") + 1] == "3" and cmd[cmd.index("--out") + 1] == "out.h5"
     # the values parse back exactly through the config's override parser
-    from calendaring.config import parse_override
+    from calendaring.core.config import parse_override
 
     back = dict(parse_override(s) for s in sets)
     assert back == {f"breakage.{k}": v for k, v in params.items()}
@@ -135,7 +135,7 @@ def test_verify_runs_reads_and_scores(calibrated, model, tmp_path):
     assert len(calls) == 3 and all("tiny" in c for c in calls)
     seeds = [c[c.index("--seed") + 1] for c in calls]
     assert seeds == ["0", "1", "0"]
-    d0 = [s for s in calls[0] if s.startswith("breakage.d0=")][0]
+    d0 = next(s for s in calls[0] if s.startswith("breakage.d0="))
     assert float(d0.split("=")[1]) == pytest.approx(res["parameters"][2]["value"], rel=1e-12)
     e = rep["optimum_mean_error"]
     assert e["points"] == int(np.sum(t_depth + 0.5 * (t_depth[1] - t_depth[0]) <= 6.5e-6))

@@ -7,7 +7,7 @@ import pytest
 
 surrogate = pytest.importorskip("surrogate")
 
-from calendaring.dataset import synthetic_dataset, write_dataset  # noqa: E402
+from calendaring.data.dataset import synthetic_dataset, write_dataset  # noqa: E402
 from inverse import cli  # noqa: E402
 from inverse.calibrate import calibrate_target  # noqa: E402
 from inverse.optimise import OptimiserConfig  # noqa: E402
@@ -69,8 +69,7 @@ def test_posterior_and_identifiability_run_on_the_real_model(model_file, truth):
 def test_validate_on_held_out_rows(model_file, truth, tmp_path):
     m = surrogate.load(model_file)
     ds_path = write_dataset(tmp_path / "holdout.h5", truth)
-    from calendaring.dataset import read_dataset
-
+    from calendaring.data.dataset import read_dataset
     from inverse.validate import select_rows
 
     np.testing.assert_array_equal(select_rows(read_dataset(ds_path)), [0, 1, 2, 3])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from calendaring.errors import ConfigError
-from calendaring.params import PAPER_SPACE
+from calendaring.core.errors import ConfigError
+from calendaring.data.params import PAPER_SPACE
 from inverse.calibrate import calibrate_target
 from inverse.loss import CompositeLoss, LossConfig, boundary_penalty
 from inverse.optimise import (

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
 from inverse.posterior import (
     PosteriorConfig,
     normalised_sigma,

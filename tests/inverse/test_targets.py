@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from calendaring.dataset import centroids
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
+from calendaring.data.dataset import centroids
 from inverse.targets import (
     Target,
     interval_means,

@@ -1,4 +1,4 @@
-"""The notebooks' output helpers in ``calendaring.plots``."""
+"""The notebooks' output helpers in ``calendaring.process.plots``."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import struct
 
 import pytest
 
-from calendaring.plots import NOTEBOOK_OUT_ENV, notebook_output, show_figure
+from calendaring.process.plots import NOTEBOOK_OUT_ENV, notebook_output, show_figure
 
 
 def test_notebook_output_under_the_environment_folder(tmp_path, monkeypatch):

@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from calendaring.bonds import FAILED_NORMAL, FAILED_SHEAR, INTACT, find_bond_pairs
-from calendaring.config import SimConfig, with_overrides
-from calendaring.simulation import Simulation
+from calendaring.core.config import SimConfig, with_overrides
+from calendaring.engine.bonds import FAILED_NORMAL, FAILED_SHEAR, INTACT, find_bond_pairs
+from calendaring.engine.simulation import Simulation
 
 S = 3.5e13  # N/m^3
 SIGMA = 5e7  # Pa
@@ -36,8 +36,10 @@ def _pair(cfg, distance=3.6e-6, radii=(R, R), mats=(1, 1)):
     return sim
 
 
-def _drive(sim, v=np.zeros((2, 3)), w=np.zeros((2, 3)), steps=1, move=True):
+def _drive(sim, v=None, w=None, steps=1, move=True):
     """Advance the pair kinematically with the bond kernel only; returns the step of failure."""
+    v = np.zeros((2, 3)) if v is None else v
+    w = np.zeros((2, 3)) if w is None else w
     pool, bonds = sim.pool, sim.bonds
     pos = pool.position.to_numpy()
     for k in range(steps):

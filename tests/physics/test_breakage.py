@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from scipy.stats import kstest, lognorm
 
-from calendaring import breakage as bk
-from calendaring.breakage_kernels import BreakageKernels
-from calendaring.config import load_config_dict, with_overrides
-from calendaring.contact_params import COL, pair_table, plate_table, reduced_modulus
-from calendaring.simulation import Simulation
-from calendaring.state import ParticlePool
+from calendaring.core.config import load_config_dict, with_overrides
+from calendaring.engine import breakage as bk
+from calendaring.engine.breakage_kernels import BreakageKernels
+from calendaring.engine.contact_params import COL, pair_table, plate_table, reduced_modulus
+from calendaring.engine.simulation import Simulation
+from calendaring.engine.state import ParticlePool
 
 TABLE4 = {"gamma": 5.549, "e_inf": 2161.0, "d0": 9.396e-6, "phi": 2.587}
 
@@ -353,7 +353,7 @@ def test_worst_case_pool_and_fragment_bounds():
 
 
 def test_a_full_pool_stops_the_run_with_a_diagnostic():
-    from calendaring.errors import SimulationError
+    from calendaring.core.errors import SimulationError
 
     sim = _doomed_parent([0.0, 0.0, 0.0], [0.0, 0.0, 0.0], capacity=3)  # room for 2 fragments
     with pytest.raises(SimulationError, match=r"particle pool full.*breakage\.pool_capacity"):
@@ -367,7 +367,7 @@ def test_a_full_pool_stops_the_run_with_a_diagnostic():
     ("min_breakable_diameter", 3e-6), ("sibling_init", "spiky"), ("shear_weight", 2.0),
     ("damage_constant", -1.0)])
 def test_bad_breakage_config_names_the_key(key, value):
-    from calendaring.errors import ConfigError
+    from calendaring.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=f"breakage.{key}"):
         load_config_dict({"breakage": {key: value}})

@@ -1,4 +1,4 @@
-"""EEPA normal law (calendaring.laws.eepa) against analytic values.
+"""EEPA normal law (calendaring.engine.laws.eepa) against analytic values.
 
 Spec references: physics-spec.md section 2 (2.1 stiffnesses, 2.2 hysteretic force, 2.3 adhesion
 map, 2.4 damping) and section 9 checks T1 (EEPA loop, work ratio) and T3 (adhesion).
@@ -7,7 +7,7 @@ The laws are ``@ti.func``; the library's host evaluator ``eepa.evaluate`` maps t
 numpy arrays of overlaps in one kernel, and two small ``@ti.kernel``s here call the adhesion
 modes and the damping coefficient directly. The exponents are the static
 Python constants n = chi = 1.5. The contact history (delta_max) is the running maximum of the
-prescribed overlap path, computed on the host exactly as calendaring.forces does
+prescribed overlap path, computed on the host exactly as calendaring.engine.forces does
 (``dmax = max(delta_max, delta)``).
 """
 
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from calendaring.config import SimConfig
-from calendaring.contact_params import damping_ratio, reduced_modulus
-from calendaring.laws import eepa
-from calendaring.laws.eepa import (
+from calendaring.core.config import SimConfig
+from calendaring.engine.contact_params import damping_ratio, reduced_modulus
+from calendaring.engine.laws import eepa
+from calendaring.engine.laws.eepa import (
     ADHESION_DIRECT,
     ADHESION_JKR_R,
     ADHESION_SURFACE_ENERGY_AP,
@@ -314,7 +314,7 @@ def test_potential_equals_integral_of_force(e_star, r_star, lam, gamma):
         np.testing.assert_array_equal(below, 0.0)  # no force (f0 = 0) below delta_p
         # at delta_max the stored energy is W2 of T1
         np.testing.assert_allclose(out[-1, C_POT], work_ratio_closed_form(lam) * w1, rtol=1e-10)
-    idx = [int(round(p / DMAX * (m - 1))) for p in picks]
+    idx = [round(p / DMAX * (m - 1)) for p in picks]
     pot = out[idx, C_POT]
     ref = integral[idx]
     assert np.all(np.abs(ref) > 1e-5 * w1)  # keep away from a sign change of the integral
@@ -350,7 +350,7 @@ def test_normal_damping_coefficient():
 def test_host_evaluator_follows_the_path_history_and_rejects_bad_input():
     """eepa.evaluate without delta_max takes the running maximum of the path (the engine's
     history), and names the key, value and range of a bad argument."""
-    from calendaring.errors import ConfigError
+    from calendaring.core.errors import ConfigError
 
     path = np.concatenate([np.linspace(0, DMAX, 40), np.linspace(DMAX, 0.3 * DMAX, 20)])
     auto = eepa.evaluate(path, e_star=E_CB_CB, r_star=R_CB_CB, plasticity_ratio=0.5,

@@ -2,7 +2,7 @@
 
 Spec references: physics-spec.md section 3 (3.1 spring, 3.2 Coulomb limit, 3.3 rolling) and
 section 9 check T4. The ``@ti.func`` laws are wrapped in small kernels defined here; the
-spring update mirrors calendaring.forces ``_law`` without the dashpot:
+spring update mirrors calendaring.engine.forces ``_law`` without the dashpot:
 ``s = rotate_spring(s, n) - k_t v_t dt``; if ``|s| > limit``: ``s = limit s/|s|``.
 """
 
@@ -12,17 +12,17 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from calendaring.config import SimConfig
-from calendaring.contact_params import reduced_modulus, reduced_shear_modulus
-from calendaring.laws.eepa import (
+from calendaring.core.config import SimConfig
+from calendaring.engine.contact_params import reduced_modulus, reduced_shear_modulus
+from calendaring.engine.laws.eepa import (
     ADHESION_SURFACE_ENERGY_AP,
     eepa_adhesion_stiffness,
     eepa_hysteretic_force,
     eepa_loading_stiffness,
     eepa_plastic_overlap,
 )
-from calendaring.laws.rolling import rolling_torque
-from calendaring.laws.tangential import coulomb_limit, rotate_spring, tangential_stiffness
+from calendaring.engine.laws.rolling import rolling_torque
+from calendaring.engine.laws.tangential import coulomb_limit, rotate_spring, tangential_stiffness
 
 N_EXP = 1.5
 CHI = 1.5
@@ -139,7 +139,7 @@ def _run_history(delta, du):
 def test_t4_coulomb_stick_slip_and_reversal(branch):
     """T4: |F_t| = k_t u up to mu|f_hys + k_adh delta^chi - f0|, then constant; reversal
     unloads with slope k_t and slides at the opposite limit."""
-    k1, k2, dp, kadh, dmin = _cbcb_constants()
+    _k1, _k2, dp, kadh, dmin = _cbcb_constants()
     # virgin: delta = delta_max (f_hys = k1 delta^n > 0); k2 line between delta_min and delta_p
     # where f_hys < 0 (tensile) but above the adhesive floor.
     delta = DMAX if branch == "virgin" else 0.5 * (dmin + dp)
@@ -229,7 +229,7 @@ def test_rotate_spring_small_tilts_take_the_series_to_the_last_bit():
     """A spring tilted out of the tangent plane by a small angle (the case of every step:
     x = (s.n)^2/|s|^2 ~ 1e-11 in a compacting bed) is restored by the series of
     1/sqrt(1 - x), on either side of the switch to the root at x = SERIES_FRACTION."""
-    from calendaring.laws.tangential import SERIES_FRACTION
+    from calendaring.engine.laws.tangential import SERIES_FRACTION
 
     rng = np.random.default_rng(1)
     m = 200

@@ -1,12 +1,12 @@
-"""Rayleigh time step (calendaring.timestep) against spec 1.3 and check T6."""
+"""Rayleigh time step (calendaring.engine.timestep) against spec 1.3 and check T6."""
 
 import math
 
 import numpy as np
 import pytest
 
-from calendaring.config import SimConfig
-from calendaring.timestep import critical_timestep, rayleigh_time
+from calendaring.core.config import SimConfig
+from calendaring.engine.timestep import critical_timestep, rayleigh_time
 
 CFG = SimConfig()
 AM = CFG.materials["AM"]

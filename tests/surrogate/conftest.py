@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from calendaring.dataset import synthetic_dataset, write_dataset
+from calendaring.data.dataset import synthetic_dataset, write_dataset
 
 
 @pytest.fixture(scope="session", autouse=True)

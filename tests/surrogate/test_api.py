@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import surrogate
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
 from surrogate.api import SurrogateModel
 from surrogate.checkpoint import CheckpointError
 from surrogate.train import TrainConfig, train

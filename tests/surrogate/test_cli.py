@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from calendaring.dataset import synthetic_dataset, write_dataset
+from calendaring.data.dataset import synthetic_dataset, write_dataset
 from surrogate.cli import main
 
 

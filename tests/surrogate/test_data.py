@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from calendaring.dataset import synthetic_dataset
-from calendaring.errors import ConfigError
+from calendaring.core.errors import ConfigError
+from calendaring.data.dataset import synthetic_dataset
 from surrogate.data import Normalisation, SurrogateDataset, split_indices, trainable_rows
 from surrogate.train import TrainConfig, make_split, train
 

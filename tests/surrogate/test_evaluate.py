@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from calendaring.dataset import noise_floor, synthetic_dataset
+from calendaring.data.dataset import noise_floor, synthetic_dataset
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.data import Normalisation

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import torch
 
-from calendaring.dataset import kl_divergence
+from calendaring.data.dataset import kl_divergence
 from surrogate.losses import SurrogateLoss, kl_per_row
 
 

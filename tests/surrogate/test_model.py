@@ -4,7 +4,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from calendaring.dataset import synthetic_dataset
+from calendaring.data.dataset import synthetic_dataset
 from surrogate.data import Normalisation, SurrogateDataset
 from surrogate.losses import SurrogateLoss
 from surrogate.model import DualBranchMLP, ModelConfig, ResidualBlock

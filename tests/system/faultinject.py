@@ -2,7 +2,7 @@
 
     python -m tests.system.faultinject FUNCTION CALL ARGV...
 
-runs ``calendaring ARGV...`` in which the CALL-th call of ``calendaring.runfile.FUNCTION``
+runs ``calendaring ARGV...`` in which the CALL-th call of ``calendaring.process.runfile.FUNCTION``
 (``write_checkpoint`` or ``write_run``) hits a full disk part-way through: the HDF5 file is
 open and partly written when the ENOSPC error comes, as on a real full disk.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 import errno
 import sys
 
-from calendaring import runfile
+from calendaring.process import runfile
 
 
 def full_disk(name: str, on_call: int) -> None:

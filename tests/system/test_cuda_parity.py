@@ -16,7 +16,7 @@ import sys
 import numpy as np
 import pytest
 
-from calendaring.runfile import read_run
+from calendaring.process.runfile import read_run
 
 
 def _cuda_ok() -> bool:

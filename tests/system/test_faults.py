@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calendaring import runfile
-from calendaring.runfile import previous_checkpoint, read_checkpoint, read_run
+from calendaring.process import runfile
+from calendaring.process.runfile import previous_checkpoint, read_checkpoint, read_run
 
 ROOT = Path(__file__).resolve().parents[2]
 SETS = ["--set", "protocol.stroke=2.5e-6", "--set", "protocol.snapshot_depths=[0.0, 2.5e-6]",
@@ -213,7 +213,7 @@ def _children_writing(path: Path) -> list[int]:
 
 @pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="needs /proc")
 def test_a_killed_sweep_run_is_retried_and_the_manifest_is_right(tmp_path):
-    from calendaring.sweep import SweepOptions, read_manifest, run_task, sweep
+    from calendaring.data.sweep import SweepOptions, read_manifest, run_task, sweep
 
     design = tmp_path / "design.csv"
     design.write_text("damage_constant,e_inf,d0,phi,sigma_e,alpha_percentage,b_prime,"
@@ -256,7 +256,7 @@ def test_a_killed_sweep_run_is_retried_and_the_manifest_is_right(tmp_path):
 
 def test_a_second_sweep_on_the_same_folder_is_refused(tmp_path, capsys):
     from calendaring.cli import main
-    from calendaring.sweep import _folder_lock
+    from calendaring.data.sweep import _folder_lock
 
     folder = tmp_path / "sweep"
     with _folder_lock(folder):
@@ -271,8 +271,8 @@ def test_a_second_sweep_on_the_same_folder_is_refused(tmp_path, capsys):
 def test_disk_full_while_a_dataset_is_written(tmp_path, monkeypatch):
     """A dataset build that hits a full disk leaves neither the file nor a temporary, and
     the CLI's contract turns the error into one line with exit 2."""
-    import calendaring.dataset as dataset_mod
-    from calendaring.cli_contract import run_cli
+    import calendaring.data.dataset as dataset_mod
+    from calendaring.core.cli_contract import run_cli
 
     ds = dataset_mod.read_dataset(ROOT / "data" / "reference.h5")
     calls = {"n": 0}

@@ -8,9 +8,9 @@ back, and the energy ledger still closes with breakage in it.
 import numpy as np
 import pytest
 
-from calendaring.config import load_preset, with_overrides
-from calendaring.run import CalenderRun
-from calendaring.runfile import read_run
+from calendaring.core.config import load_preset, with_overrides
+from calendaring.process.run import CalenderRun
+from calendaring.process.runfile import read_run
 
 
 @pytest.fixture(scope="module")

@@ -13,16 +13,15 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import h5py
 import numpy as np
 import pytest
 
-from calendaring.bonds import INTACT
 from calendaring.cli import main
-from calendaring.run import STAGES
-from calendaring.runfile import (
+from calendaring.engine.bonds import INTACT
+from calendaring.process.run import STAGES
+from calendaring.process.runfile import (
     BONDS,
     PRESSURE,
     SERIES_UNITS,
@@ -122,8 +121,8 @@ def test_breakage_keeps_every_particle_and_the_active_material_volume(tiny_run):
 
 
 def test_breakage_records_follow_the_model(tiny_run):
-    from calendaring import breakage as bk
-    from calendaring.runfile import BREAKAGE, FRAGMENTS
+    from calendaring.engine import breakage as bk
+    from calendaring.process.runfile import BREAKAGE, FRAGMENTS
 
     rec = read_run(tiny_run)
     with h5py.File(tiny_run) as f:
@@ -273,7 +272,7 @@ def test_reader_rejects_truncated_foreign_and_edited_files(tiny_run, tmp_path, c
     data = tiny_run.read_bytes()
     cut = tmp_path / "cut.h5"
     cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(RunFileError, match="cut.h5"):
+    with pytest.raises(RunFileError, match=r"cut\.h5"):
         read_run(cut)
     assert main(["inspect", str(cut)]) == 2
     foreign = tmp_path / "foreign.h5"
@@ -307,7 +306,7 @@ def test_inspect_plot_and_export(tiny_run, tmp_path, capsys):
         assert main(["export", str(tiny_run), "--snapshot", str(last), flag,
                      "--out", str(out)]) == 0
         assert out.exists()
-    from calendaring.packing import read_csv, read_lammps_data
+    from calendaring.process.packing import read_csv, read_lammps_data
 
     for pk in (read_csv(tmp_path / "snap.csv"), read_lammps_data(tmp_path / "snap.data")):
         np.testing.assert_array_equal(pk.position, rec.snapshots[last].position)
@@ -350,8 +349,8 @@ def test_packing_start_pressure_target_and_unloading(tiny_run, tmp_path):
 def test_preflight_estimate_matches_the_run(tiny_run):
     """The pre-flight estimate (configuration only) against what the run did: the time step
     exactly, the plate speed, the particle count and the calendering steps closely."""
-    from calendaring.preflight import estimate
-    from calendaring.runfile import read_run
+    from calendaring.process.preflight import estimate
+    from calendaring.process.runfile import read_run
 
     rec = read_run(tiny_run)
     est = estimate(rec.config)

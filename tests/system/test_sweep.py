@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calendaring.dataset import build_dataset, read_dataset, write_dataset
-from calendaring.runfile import read_run
-from calendaring.sweep import SweepOptions, read_manifest, run_task, sweep
+from calendaring.data.dataset import build_dataset, read_dataset, write_dataset
+from calendaring.data.sweep import SweepOptions, read_manifest, run_task, sweep
+from calendaring.process.runfile import read_run
 
 ROOT = Path(__file__).resolve().parents[2]
 OVERRIDES = {"protocol.stroke": 2.5e-6, "protocol.snapshot_depths": [0.0, 2.5e-6]}
@@ -52,7 +52,7 @@ def swept(tmp_path_factory):
 
 
 def test_sweep_end_to_end_with_an_injected_failure(swept):
-    out, opt, runs = swept
+    _out, opt, runs = swept
     folder = opt.out
     assert len(runs) == 3
     by_index = {e.index: e for e in runs.values()}
@@ -75,7 +75,7 @@ def test_sweep_end_to_end_with_an_injected_failure(swept):
 
 
 def test_rerun_skips_done_and_gives_up_after_max_attempts(swept):
-    out, opt, runs = swept
+    _out, opt, runs = swept
     mtimes = {e.run_id: (opt.out / e.file).stat().st_mtime_ns
               for e in runs.values() if e.status == "done"}
     calls = []
@@ -92,7 +92,7 @@ def test_rerun_skips_done_and_gives_up_after_max_attempts(swept):
 
 
 def test_dataset_from_the_sweep(swept, tmp_path):
-    out, opt, runs = swept
+    _out, opt, runs = swept
     (opt.out / "runs" / "not-a-run.h5").write_bytes(b"garbage")
     try:
         ds = build_dataset(opt.out, progress=False)
@@ -121,7 +121,7 @@ def test_dataset_from_the_sweep(swept, tmp_path):
 
 
 def test_dataset_cli_writes_the_provenance(swept, tmp_path):
-    out, opt, runs = swept
+    _out, opt, runs = swept
     r = subprocess.run([sys.executable, "-m", "calendaring.cli", "dataset", str(opt.out),
                         "--out", str(tmp_path / "ds.h5"), "--quiet"], cwd=ROOT,
                        capture_output=True, text=True)
@@ -194,7 +194,7 @@ def test_sweep_cli_rejects_bad_input(tmp_path):
 def test_the_sweep_resumes_from_digests_alone(swept, tmp_path):
     """A fresh machine with only the sweep's manifest and digests (kept in the repository):
     the finished runs are not run again and the dataset is the same."""
-    out, opt, runs = swept
+    _out, opt, runs = swept
     done = [e for e in runs.values() if e.status == "done"]
     for e in done:
         assert (opt.out / "digests" / f"{Path(e.file).stem}.h5").exists()

@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from calendaring.runfile import read_run
+from calendaring.process.runfile import read_run
 
 
 def _run(threads: int, out) -> None:

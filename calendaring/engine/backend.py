@@ -1,0 +1,148 @@
+"""The only place that starts the Taichi runtime.
+
+Importing any calendaring module has no Taichi side effects; call :func:`init_taichi`
+(or let :class:`calendaring.engine.simulation.Simulation` call it) before building pools.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import taichi as ti
+
+from calendaring.core.errors import ConfigError
+
+_STATE: dict = {"settings": None}
+
+
+@dataclass(frozen=True)
+class BackendInfo:
+    """What :func:`init_taichi` started."""
+
+    arch: str  # "cpu" or "cuda"
+    precision: str  # "f64"
+    threads: int  # CPU threads (0 = Taichi default)
+    seed: int
+    cache_dir: str
+
+
+def default_cache_dir() -> Path:
+    """Offline kernel cache directory (``$CALENDARING_KERNEL_CACHE`` or ~/.cache)."""
+    env = os.environ.get("CALENDARING_KERNEL_CACHE")
+    if env:
+        return Path(env)
+    return Path.home() / ".cache" / "calendaring" / "taichi"
+
+
+def init_taichi(
+    arch: str = "cpu",
+    precision: str = "f64",
+    seed: int = 0,
+    threads: int = 0,
+    offline_cache: bool = True,
+    cache_dir: str | Path | None = None,
+    debug: bool = False,
+) -> BackendInfo:
+    """Start Taichi once per process; later calls with the same settings are no-ops.
+
+    Args:
+        arch: "cpu", "cuda" or "auto" (CUDA when available, else CPU).
+        precision: "f64" (default float type of every kernel).
+        seed: Taichi's random seed (``ti.random``).
+        threads: CPU threads, 0 = all cores.
+        offline_cache: keep compiled kernels on disk between processes.
+        cache_dir: where the offline cache lives (default :func:`default_cache_dir`).
+        debug: Taichi debug mode (bounds checks; slow).
+
+    Raises:
+        ConfigError: unknown arch or precision, or CUDA requested but unavailable.
+        RuntimeError: Taichi already started with different settings (fields allocated
+            under the old runtime would be invalidated).
+    """
+    if arch not in ("cpu", "cuda", "auto"):
+        raise ConfigError("numerics.arch", arch, "cpu, cuda or auto")
+    if precision != "f64":
+        raise ConfigError("numerics.precision", precision, "f64")
+    cache = str(cache_dir or default_cache_dir())
+    key = (arch, precision, seed, threads, offline_cache, cache, debug)
+    if _STATE["settings"] is not None:
+        if _STATE["settings"][0] == key:
+            return _STATE["settings"][1]
+        raise RuntimeError(
+            f"Taichi already initialised with {_STATE['settings'][0]}; requested {key}. "
+            "Call calendaring.engine.backend.reset_taichi() first (this invalidates every pool)."
+        )
+    # "auto" asks for CUDA, which Taichi replaces by the CPU when no CUDA device answers
+    # (ti.gpu would also probe Vulkan and OpenGL, which can crash a headless machine)
+    ti_arch = ti.cuda if arch in ("cuda", "auto") else ti.cpu
+    kwargs = dict(
+        arch=ti_arch,
+        default_fp=ti.f64,
+        default_ip=ti.i32,
+        random_seed=seed,
+        offline_cache=offline_cache,
+        offline_cache_file_path=cache,
+        debug=debug,
+        log_level=ti.WARN,
+        # IEEE arithmetic: with fast math LLVM may reorder sums differently in two kernels
+        # that inline the same function (the one-launch-per-step and multi-step paths
+        # then drift apart in the last bits) and may drop NaN tests (the guards); it
+        # measured no faster here
+        fast_math=False,
+    )
+    if arch != "cuda":  # the CPU's thread pool ("auto" may fall back to the CPU)
+        kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)
+    ti.init(**kwargs)
+    actual = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
+    if arch == "cuda" and actual != "cuda":
+        ti.reset()
+        raise ConfigError("numerics.arch", arch, "cpu or auto: no CUDA device is available")
+    info = BackendInfo(arch=actual, precision=precision, threads=threads, seed=seed,
+                       cache_dir=cache)
+    _STATE["settings"] = (key, info)
+    return info
+
+
+def cpu_pool_threads(threads: int) -> int:
+    """Taichi CPU worker threads for ``threads`` cores (0 = every core): one per core.
+
+    The steps run as multi-step launches whose workers spin at barriers
+    (``calendaring.engine.forces.Kernels.burst``); with more pool threads than cores two workers
+    can share a core, and a barrier then waits for the scheduler's time slice (measured on
+    a 2-core VM, 100-step launches of a 2-particle bed: 1.3 ms with 2 pool threads, 12 ms
+    with 4). (One launch per step, the path before multi-step launches, ran faster with two
+    per core: a worker still asleep when a sub-millisecond loop starts leaves its core idle.)
+    """
+    return threads or (os.cpu_count() or 1)
+
+
+def serial_loops(threads: int) -> bool:
+    """Whether the per-step loops run serialised: on the CPU backend with one thread only
+    (a parallel loop's dispatch costs more than a small bed's work there). On CUDA every
+    loop stays parallel whatever ``numerics.threads`` says."""
+    info = current_backend()
+    return int(threads) == 1 and (info is None or info.arch == "cpu")
+
+
+def burst_workers(threads: int) -> int:
+    """Worker threads of a multi-step launch (``calendaring.engine.forces.Kernels.burst``): one per
+    core asked for (``threads``, 0 = every core), 1 for a serial run; 0 on CUDA, where a
+    launch cannot hold its blocks at a barrier and every step is its own launch."""
+    info = current_backend()
+    if info is not None and info.arch != "cpu":
+        return 0
+    return max(1, cpu_pool_threads(int(threads)))
+
+
+def current_backend() -> BackendInfo | None:
+    """The running backend, or None before :func:`init_taichi`."""
+    return _STATE["settings"][1] if _STATE["settings"] else None
+
+
+def reset_taichi() -> None:
+    """Shut the runtime down (every field and pool becomes invalid)."""
+    if _STATE["settings"] is not None:
+        ti.reset()
+        _STATE["settings"] = None

@@ -1,6 +1,0 @@
-"""Pure contact laws (``@ti.func``): scalars and vectors in, scalars and vectors out.
-
-No law touches a field; the kernels in :mod:`calendaring.forces` map them over contacts.
-:func:`calendaring.laws.eepa.evaluate` maps the normal law over NumPy overlaps on the host
-(plots, checks of contact parameters, the law's tests).
-"""

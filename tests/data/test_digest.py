@@ -1,0 +1,122 @@
+"""Run digests (calendaring.data.digest): a dataset built from a sweep's digests alone equals the
+one built from its run files, and a sweep counts a run with a complete digest as finished."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from calendaring.core.config import load_preset, with_overrides
+from calendaring.data.dataset import DatasetError, build_dataset, resample_pressure
+from calendaring.data.digest import digest_ok, digest_path, read_digest, write_digest
+from calendaring.data.sweep import finished
+from calendaring.process.runfile import (
+    BREAKAGE,
+    FRAGMENTS,
+    SERIES_UNITS,
+    RunFileError,
+    read_run,
+    write_run,
+)
+
+D0 = (4e-6, 5e-6, 6e-6, 7e-6)
+
+
+def _fake_run(path, d0: float, seed: int, rng):
+    """A schema-valid, complete run file (no DEM): a rough rising trace and events."""
+    cfg = with_overrides(load_preset("tiny"), {"breakage.d0": d0, "numerics.seed": seed})
+    stroke = cfg.protocol.stroke
+    n = 3001
+    depth = np.sort(rng.uniform(0, stroke, n))
+    depth[0], depth[-1] = 0.0, stroke
+    pressure = 1e8 * (depth / stroke) ** 2 + rng.normal(0, 1e6, n) ** 2
+    k = 40 + seed
+    brk = {name: np.zeros(k) for name in BREAKAGE}
+    brk["peak_load"] = 10 ** rng.uniform(-3, -1, k)
+    brk["diameter"] = rng.uniform(3e-6, 12e-6, k)
+    brk["fragments"] = {name: np.zeros(0) for name in FRAGMENTS}
+    series = {name: np.zeros(3) for name in SERIES_UNITS}
+    series["particles"] = np.array([100.0, 120.0, 140.0])
+    return write_run(path, {
+        "config": cfg, "preset": "tiny", "seed": seed,
+        "info": {"final_depth": stroke, "wall_seconds": 12.5 + seed, "n_particles": 100},
+        "breakage_model": "tavares_ufrj", "breakage": brk,
+        "pressure": {"step": np.arange(n), "time": np.arange(n) * 1e-9, "depth": depth,
+                     "value": pressure, "bottom": pressure},
+        "unloading": {"depth": np.zeros(0), "value": np.zeros(0), "bottom": np.zeros(0)},
+        "series": series, "energy": {"kinetic": np.zeros(3)}, "snapshots": []})
+
+
+@pytest.fixture()
+def sweep_folder(tmp_path):
+    folder = tmp_path / "sweep"
+    (folder / "runs").mkdir(parents=True)
+    rng = np.random.default_rng(5)
+    for i, d0 in enumerate(D0):
+        path = _fake_run(folder / "runs" / f"train-x-{i:04d}-s{i}-abc.h5", d0, i, rng)
+        write_digest(digest_path(folder, path.stem), read_run(path))
+    return folder
+
+
+def test_digest_round_trip_and_exact_interval_means(sweep_folder):
+    path = sorted((sweep_folder / "runs").glob("*.h5"))[1]
+    rec, dg = read_run(path), read_digest(digest_path(sweep_folder, path.stem))
+    assert dg.run == path.stem and dg.seed == rec.seed and dg.preset == "tiny"
+    assert dg.config == rec.config and dg.stroke == rec.stroke
+    assert dg.final_depth == rec.stroke and dg.wall_seconds == 13.5 and dg.particles_end == 140
+    np.testing.assert_array_equal(dg.peak_load, rec.breakage["peak_load"])
+    np.testing.assert_array_equal(dg.diameter, rec.breakage["diameter"])
+    for n in (196, 98, 1960, 10):
+        mid, means = dg.pressure_means(n)
+        mid_r, means_r = resample_pressure(rec.pressure["depth"], rec.pressure["value"],
+                                           rec.stroke, n)
+        np.testing.assert_allclose(mid, mid_r, rtol=1e-15)
+        np.testing.assert_allclose(means, means_r, rtol=1e-12)
+    with pytest.raises(ValueError, match="must divide"):
+        dg.pressure_means(195)
+    assert path.stat().st_size > 5 * digest_path(sweep_folder, path.stem).stat().st_size
+
+
+def test_a_dataset_from_digests_alone_equals_the_one_from_run_files(sweep_folder, tmp_path):
+    full = build_dataset(sweep_folder, progress=False)
+    alone = tmp_path / "digests-only"
+    shutil.copytree(sweep_folder / "digests", alone / "digests")
+    ds = build_dataset(alone, progress=False)
+    assert ds.provenance["from_digests"] == len(D0) and full.provenance["from_digests"] == 0
+    np.testing.assert_allclose(ds.pressure_raw, full.pressure_raw, rtol=1e-12)
+    np.testing.assert_allclose(ds.pressure, full.pressure, rtol=1e-10)
+    np.testing.assert_array_equal(ds.histogram, full.histogram)
+    np.testing.assert_array_equal(ds.params, full.params)
+    for key in ("run_id", "files", "seed", "role", "n_events", "wall_time"):
+        np.testing.assert_array_equal(getattr(ds, key), getattr(full, key))
+    with pytest.raises(DatasetError, match="must divide"):
+        build_dataset(alone, n_points=195, savgol_window=17, progress=False)
+
+
+def test_a_broken_run_file_falls_back_to_its_digest(sweep_folder):
+    first = sorted((sweep_folder / "runs").glob("*.h5"))[0]
+    first.write_bytes(first.read_bytes()[:1000])  # cut short
+    ds = build_dataset(sweep_folder, progress=False)
+    assert len(ds) == len(D0) and ds.provenance["from_digests"] == 1
+    dg = digest_path(sweep_folder, first.stem)
+    dg.write_bytes(dg.read_bytes()[:500])
+    ds = build_dataset(sweep_folder, progress=False)
+    assert len(ds) == len(D0) - 1
+    (name, why), = ds.skipped
+    assert name == first.name and "digest:" in why
+
+
+def test_the_sweep_counts_a_complete_digest_as_a_finished_run(sweep_folder):
+    path = sorted((sweep_folder / "runs").glob("*.h5"))[2]
+    rel = f"runs/{path.name}"
+    assert finished(sweep_folder, rel)
+    path.unlink()
+    assert finished(sweep_folder, rel)  # the digest alone
+    dg = digest_path(sweep_folder, path.stem)
+    raw = dg.read_bytes()
+    dg.write_bytes(raw[: len(raw) // 2])
+    assert not finished(sweep_folder, rel) and not digest_ok(dg)[0]
+    with pytest.raises(RunFileError):
+        read_digest(dg)
