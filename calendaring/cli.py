@@ -15,6 +15,9 @@ kept), 1 an internal error (a bug: traceback and a line saying so), 130 interrup
     calendaring sweep --design lhs --n 280 --preset sweep --out RUNS/
     calendaring dataset RUNS/ --out data/dataset.h5
     calendaring digest RUNS/                  # digests of run files made without them
+
+See also: :mod:`calendaring.core.cli_contract` (exit codes and argument checks),
+:mod:`calendaring.process.run` (``run``), :mod:`calendaring.data.sweep` (``sweep``).
 """
 
 from __future__ import annotations

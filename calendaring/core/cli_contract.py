@@ -23,6 +23,9 @@ fix (each package adds its own error types, e.g. a corrupt run file), and
 :func:`integer` / :func:`real` are argparse types that check ranges and reject NaN and
 infinities while parsing. :func:`input_file` and :func:`output_path` check paths before any
 work starts.
+
+See also: :mod:`calendaring.core.errors` (the error types behind codes 2 and 3),
+:mod:`calendaring.cli` (the ``calendaring`` program).
 """
 
 from __future__ import annotations

@@ -13,6 +13,9 @@ Example:
     >>> cfg = load_config_dict({"numerics": {"timestep_fraction": 0.02}})
     >>> cfg.numerics.timestep_fraction
     0.02
+
+See also: :mod:`calendaring.engine.simulation` (what the configuration drives),
+:mod:`calendaring.process.runfile` (the config JSON kept in every run file).
 """
 
 from __future__ import annotations

@@ -1,4 +1,7 @@
-"""Exception types shared by the host and device layers."""
+"""Exception types shared by the host and device layers.
+
+See also: :mod:`calendaring.core.cli_contract` (the exit code of each error type).
+"""
 
 from __future__ import annotations
 

@@ -4,6 +4,9 @@ Every file is written under a temporary name in its destination folder, then ren
 crash never leaves a half-written file under the real name. JSON goes through
 :func:`json_safe`: NumPy scalars and arrays become Python values, paths become strings and
 non-finite floats become ``null`` (strict JSON).
+
+See also: :mod:`calendaring.process.plots` (figures), :mod:`calendaring.data.sweep` (the
+manifest, rewritten atomically after every task).
 """
 
 from __future__ import annotations

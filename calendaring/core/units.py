@@ -1,5 +1,9 @@
 """Display units. Code, configs and files are SI; micrometres and MPa appear only in
-plots and printed summaries, through these helpers."""
+plots and printed summaries, through these helpers.
+
+See also: :mod:`calendaring.process.plots` (axes in micrometres and MPa),
+:mod:`calendaring.cli` (printed summaries).
+"""
 
 from __future__ import annotations
 

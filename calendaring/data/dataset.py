@@ -43,6 +43,9 @@ Root attributes: ``parameter_space`` (JSON, :meth:`ParameterSpace.to_json`), ``s
 ``savgol_window``, ``savgol_order``, ``load_scale``, ``base_config`` (JSON of the first run's
 configuration), ``fingerprint`` (SHA-256 of the arrays), ``skipped`` (JSON list of
 [file, reason]), ``provenance`` (JSON), ``noise_floor`` (JSON, :func:`noise_floor`).
+
+See also: :mod:`calendaring.data.digest` (the per-run digests it can be built from),
+:mod:`calendaring.data.curves` (resampling and smoothing), :mod:`calendaring.process.runfile`.
 """
 
 from __future__ import annotations

@@ -4,6 +4,9 @@ Designs are drawn in the unit cube with :mod:`scipy.stats.qmc` (seeded) and mapp
 physical values by the :class:`~calendaring.data.params.ParameterSpace`. :func:`design_report`
 gives the largest absolute pairwise Pearson correlation (the paper's design has |r| < 0.3)
 and :func:`plot_correlation` the heatmap of paper Fig. 3.
+
+See also: :mod:`calendaring.data.params` (the parameter space), :mod:`calendaring.data.sweep`
+(which runs the designs).
 """
 
 from __future__ import annotations

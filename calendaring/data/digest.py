@@ -15,6 +15,9 @@ Layout (HDF5; every dataset has a ``unit`` attribute): root attributes ``format`
 (JSON), ``config_hash``, ``seed``, ``preset``, ``breakage_model``, ``stroke`` [m],
 ``final_depth`` [m], ``wall_seconds`` [s], ``n_particles``, ``particles_end``; datasets
 ``pressure_mean`` [Pa] (:data:`POINTS`), ``peak_load`` [N], ``diameter`` [m].
+
+See also: :mod:`calendaring.process.runfile` (the run file a digest summarises),
+:mod:`calendaring.data.dataset` (built from digests), :mod:`calendaring.data.sweep`.
 """
 
 from __future__ import annotations

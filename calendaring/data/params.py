@@ -9,6 +9,9 @@ percentages (A, R_t), which are percent as in the paper and in ``[breakage]`` co
     >>> u = space.to_unit(space.reference)        # physical -> [0, 1]^8
     >>> x = space.from_unit(u)                    # and back
     >>> space.check({"d0": 20e-6})                # ConfigError naming key, value and range
+
+See also: :mod:`calendaring.data.design` (designs over this space),
+:mod:`calendaring.data.dataset` (stores it as ``parameter_space``).
 """
 
 from __future__ import annotations

@@ -30,6 +30,9 @@ finished task, and a run in flight keeps its own checkpoint (``output.checkpoint
 which the retry resumes from; a crash or SIGKILL of the sweep loses at most the work since
 those checkpoints. Children die with the sweep (``PR_SET_PDEATHSIG``), and a lock file stops
 two sweeps from working on one folder at once.
+
+See also: :mod:`calendaring.data.design` (the designs), :mod:`calendaring.data.digest`
+(what marks a run finished), :mod:`calendaring.process.run` (the staged run of each task).
 """
 
 from __future__ import annotations

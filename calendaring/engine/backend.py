@@ -2,6 +2,9 @@
 
 Importing any calendaring module has no Taichi side effects; call :func:`init_taichi`
 (or let :class:`calendaring.engine.simulation.Simulation` call it) before building pools.
+
+See also: :mod:`calendaring.engine.simulation`, :mod:`calendaring.engine.laws.eepa` (its
+host-side :func:`~calendaring.engine.laws.eepa.evaluate` starts the runtime too).
 """
 
 from __future__ import annotations

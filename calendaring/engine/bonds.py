@@ -23,6 +23,9 @@ Bonds act in addition to the EEPA contact. A bond whose particle dies (breakage)
 and counted apart from failures. There is no bond damping (P&C parallel bonds are undamped).
 
 Bond states: ``INTACT`` 0, ``FAILED_NORMAL`` 1, ``FAILED_SHEAR`` 2, ``REMOVED`` 3.
+
+See also: :mod:`calendaring.engine.laws.tangential` (the spring rotation reused for F_t
+and M_t), :mod:`calendaring.engine.simulation` (``create_bonds`` at the start of calendering).
 """
 
 

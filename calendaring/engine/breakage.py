@@ -17,6 +17,9 @@ use the same formulas; the tests hold both to the analytic values of spec sectio
   ``x = E_event / E_f``, ``E_f <- E_f (1 - D)``.
 - Breakage index (Eq. 39, spec 5.7): ``t10 = A/100 [1 - exp(-b' E_k / E50)]`` and the t_n
   family ``t_n = 1 - (1 - t10)^(9 / (n - 1))`` (spec 5.8).
+
+See also: :mod:`calendaring.engine.contact_params` (the plane-strain moduli ``k``),
+:mod:`calendaring.process.preflight` (the worst-case pool slots).
 """
 
 from __future__ import annotations

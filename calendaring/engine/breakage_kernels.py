@@ -21,6 +21,10 @@ Per step, after the contact forces (spec 5.11):
 Random numbers come from a counter-based hash of (run seed, particle id, draw number), so a
 particle's fracture energy and a parent's fragment layout do not depend on thread order or
 on a restart from a checkpoint.
+
+See also: :mod:`calendaring.engine.breakage` (the host formulas),
+:mod:`calendaring.engine.kernels.stressing` (the stressing work of each contact),
+:mod:`calendaring.engine.state` (the pool the fragments are appended to).
 """
 
 

@@ -7,6 +7,9 @@ depend on the particle radii or masses is computed here once:
 - ``1/E* = (1 - nu_i^2)/E_i + (1 - nu_j^2)/E_j``
 - ``1/G* = (2 - nu_i)/G_i + (2 - nu_j)/G_j``
 - ``beta_hat = -ln e / sqrt(ln^2 e + pi^2)`` (damping ratio from the restitution coefficient)
+
+See also: :mod:`calendaring.engine.kernels.law` (reads the tables per contact),
+:mod:`calendaring.engine.laws.eepa` (the normal law these constants feed).
 """
 
 from __future__ import annotations

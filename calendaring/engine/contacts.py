@@ -24,6 +24,9 @@ the sums need no atomic adds and their order does not depend on the number of th
 
 Capacity: the pair count is computed before filling; if it exceeds the capacity the host
 grows the table (copying the history) and rebuilds, never truncating.
+
+See also: :mod:`calendaring.engine.neighbours` (the cell grid and the blocked scans),
+:mod:`calendaring.engine.kernels.pairs` (the force kernel and the gather).
 """
 
 

@@ -11,6 +11,9 @@ The prefix sums (cells here, pair segments and incoming lists in
 blocks of ``SCAN_BLOCK`` entries, parallel over blocks, then a serial scan of the block
 totals. They run on both backends (Taichi's ``PrefixSumExecutor`` is CUDA-only) and keep a
 single GPU thread from walking a million entries at every rebuild.
+
+See also: :mod:`calendaring.engine.contacts` (the candidate pairs found in the grid),
+:mod:`calendaring.engine.simulation` (when the grid is rebuilt).
 """
 
 

@@ -29,6 +29,9 @@ act on: the same steps, bit for bit on one thread. The time step is
 (``calendaring.engine.timestep``), and with breakage at most
 ``breakage.fragment_timestep_fraction`` x the Rayleigh time of the smallest fragment; it is
 fixed when the run starts.
+
+See also: :mod:`calendaring.engine.forces` (the per-step kernels),
+:mod:`calendaring.process.run` (the staged run that drives a Simulation).
 """
 
 from __future__ import annotations

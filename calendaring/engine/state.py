@@ -15,6 +15,9 @@ Insertion:
 
 Every per-particle array is SI: position [m] (f64), velocity [m/s], angular velocity
 [rad/s], force [N], torque [N m], radius [m], mass [kg] (density scaling included).
+
+See also: :mod:`calendaring.engine.breakage_kernels` (appends fragments at the tail),
+:mod:`calendaring.engine.contacts` (pairs owned by the lower slot, history keyed by id).
 """
 
 

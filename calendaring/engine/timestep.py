@@ -7,6 +7,9 @@ with the EDEM definition
 
 (EDEM "Estimate Simulation Time"; Li, Xu & Thornton 2005). With density scaling ``s`` the
 particle density entering both the masses and ``T_R`` is ``s rho``.
+
+See also: :mod:`calendaring.engine.simulation` (fixes the time step when a run starts),
+:mod:`calendaring.process.preflight` (step counts from the same Rayleigh times).
 """
 
 from __future__ import annotations

@@ -10,6 +10,9 @@ gives 42.3 % (the paper quotes 41.42 % from the experiment).
 
 The time-stepping stages (settling, pre-compaction, relaxation) are in
 :mod:`calendaring.process.run`.
+
+See also: :mod:`calendaring.process.preflight` (particle counts from the same recipe),
+:mod:`calendaring.process.packing` (settled beds on disk).
 """
 
 from __future__ import annotations

@@ -54,6 +54,9 @@ Example:
 Every writer is atomic: it writes a hidden temporary file in the target directory and
 renames it onto the final name, so a failed write never leaves a partial file under the
 final name.
+
+See also: :mod:`calendaring.process.run` (writes the settled beds of ``calendaring pack`` and
+starts runs from them), :mod:`calendaring.cli` (``calendaring export``).
 """
 
 from __future__ import annotations

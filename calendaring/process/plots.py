@@ -1,4 +1,8 @@
-"""Figures of a run file (matplotlib, Agg backend; micrometres and MPa on the axes only)."""
+"""Figures of a run file (matplotlib, Agg backend; micrometres and MPa on the axes only).
+
+See also: :mod:`calendaring.process.runfile` (the run record plotted),
+:mod:`calendaring.core.units`.
+"""
 
 from __future__ import annotations
 

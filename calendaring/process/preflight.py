@@ -34,6 +34,10 @@ How the figures are made:
   run from a packed bed the figure errs high (a 100 um sweep-preset run: estimated 30 min,
   measured 13.5 min on one thread); it is a guard against runs that cannot finish, not a
   schedule.
+
+See also: :mod:`calendaring.engine.timestep` (the Rayleigh times),
+:mod:`calendaring.process.run` (the stages estimated), :mod:`calendaring.cli` (prints the
+estimate).
 """
 
 from __future__ import annotations

@@ -23,6 +23,9 @@ separate file every ``output.checkpoint_interval`` wall seconds; ``resume=True``
 from it and gives the uninterrupted result (bit-identical on one CPU thread). The run file
 is written at the end under a temporary name and renamed, so a killed run never leaves a
 file that looks complete. File layout: :mod:`calendaring.process.runfile`.
+
+See also: :mod:`calendaring.engine.simulation` (the engine each stage drives),
+:mod:`calendaring.process.electrode` (recipe and insertion), :mod:`calendaring.process.packing`.
 """
 
 from __future__ import annotations

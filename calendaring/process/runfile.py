@@ -63,6 +63,9 @@ Each ``snapshots/<k>`` group has attributes ``depth`` (m), ``step``, ``time`` (s
 
 Checkpoints (``format`` = "calendaring-checkpoint") use a generic tree layout private to
 :mod:`calendaring.process.run`.
+
+See also: :mod:`calendaring.data.digest` (the ~30 kB digest of a finished run),
+:mod:`calendaring.process.plots` (figures of a run record), :mod:`calendaring.data.dataset`.
 """
 
 from __future__ import annotations

@@ -11,4 +11,7 @@
 
 Bonds and the breakage test have their own kernel classes
 (:mod:`calendaring.engine.bonds`, :mod:`calendaring.engine.breakage_kernels`).
+
+See also: :mod:`calendaring.engine.forces` (the class the mixins make up),
+:mod:`calendaring.engine.laws` (the contact laws they evaluate).
 """

@@ -30,6 +30,9 @@ k_adh = F_pull / delta_min^chi. Mode ``jkr_R`` uses F_pull = 1.5 pi Delta gamma 
 Normal damping [A] (spec 2.4): f_nd = beta_n delta_dot with beta_n = 2 g_n beta_hat
 sqrt(m* k_eff), k_eff = n k1 delta^(n-1), g_n = 1 (n = 1) or sqrt(5/6) (n = 1.5);
 ``literal_k1`` plugs k1 into paper Eq. 10 as printed.
+
+See also: :mod:`calendaring.engine.laws.tangential` (the Coulomb limit on this law's force),
+:mod:`calendaring.engine.contact_params` (the per-pair constants).
 """
 
 import math

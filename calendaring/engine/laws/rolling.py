@@ -6,6 +6,9 @@ type A; paper Eq. 19, spec 3.3).
 summed over the contacts of particle i. [A] anti-chatter guard: no torque below
 |omega| = 1e-12 rad/s, and the total is capped so that one step cannot reverse the spin
 (|tau| dt / I <= |omega|).
+
+See also: :mod:`calendaring.engine.laws.tangential`, :mod:`calendaring.engine.kernels.particles`
+(applies the torque per particle).
 """
 
 import taichi as ti

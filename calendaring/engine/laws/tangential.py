@@ -8,6 +8,9 @@
 Symbols: xi_t = ``contact.tangential_stiffness_ratio`` (default 2/3), mu_s =
 ``contact.pairs."A-B".friction``. Rot() projects the stored spring onto the current tangent
 plane and restores its magnitude.
+
+See also: :mod:`calendaring.engine.laws.eepa` (f_hys and k_adh), :mod:`calendaring.engine.bonds`
+(reuses the spring rotation), :mod:`calendaring.engine.laws.rolling`.
 """
 
 import taichi as ti
