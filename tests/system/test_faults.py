@@ -21,6 +21,10 @@ import pytest
 from calendaring.process import runfile
 from calendaring.process.runfile import previous_checkpoint, read_checkpoint, read_run
 
+# the slow tier (bash scripts/test.sh --slow; CI runs it): about 4 minutes of killed,
+# full-disk and resumed runs
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 SETS = ["--set", "protocol.stroke=2.5e-6", "--set", "protocol.snapshot_depths=[0.0, 2.5e-6]",
         "--set", "output.record_spacing=0.25e-6",

@@ -12,6 +12,9 @@ from calendaring.core.config import load_preset, with_overrides
 from calendaring.process.run import CalenderRun
 from calendaring.process.runfile import read_run
 
+# the slow tier (bash scripts/test.sh --slow; CI runs it): a whole quick-preset run, about 2 minutes
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):

@@ -187,6 +187,7 @@ def test_bond_rules_hold_through_the_run(tiny_run):
     assert failed[-1] > 0  # calendering breaks bonds
 
 
+@pytest.mark.slow  # a killed run resumed: the slow tier
 def test_resume_after_sigkill_gives_the_uninterrupted_result(tiny_run, tmp_path):
     out = tmp_path / "killed.h5"
     ckpt = tmp_path / "killed.h5.ckpt"

@@ -135,6 +135,7 @@ def test_dataset_cli_writes_the_provenance(swept, tmp_path):
     assert read_dataset(tmp_path / "ds.h5").fingerprint == prov["dataset_fingerprint"]
 
 
+@pytest.mark.slow  # a killed run resumed: the slow tier
 def test_resume_after_the_sweep_is_killed(swept, tmp_path):
     out, _, _ = swept
     folder = tmp_path / "killed"

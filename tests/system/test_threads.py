@@ -7,8 +7,13 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from calendaring.process.runfile import read_run
+
+# the slow tier (bash scripts/test.sh --slow; CI runs it): runs on one and two threads,
+# about 2 minutes
+pytestmark = pytest.mark.slow
 
 
 def _run(threads: int, out) -> None:
