@@ -21,6 +21,7 @@ from pathlib import Path
 from calendaring import (
     EXIT_OK,
     EXIT_UNSTABLE,
+    PRESETS,
     ConfigError,
     ContractParser,
     output_path,
@@ -87,7 +88,7 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("--quiet", action="store_true")
 
     c = sub.add_parser("compare", help="R0/R1 and PSD studies (Figs. 12, 13; Table 5)")
-    c.add_argument("--preset", required=True, choices=("quick", "tiny", "paper"),
+    c.add_argument("--preset", required=True, choices=PRESETS,
                    help="calendaring preset of every run")
     c.add_argument("--out-dir", required=True, help="output folder (runs under runs/)")
     c.add_argument("--studies", default="r0r1,psd", help="comma-separated: r0r1, psd")

@@ -42,10 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring import ConfigError, format_override
+from calendaring import PRESETS, ConfigError, format_override
 
 STUDIES = ("r0r1", "psd")
-PRESETS = ("tiny", "quick", "paper")
 PAPER_FINAL_DEPTH = 19.5e-6
 """The paper's largest calendering depth [m] (Table 5 runs, Fig. 13)."""
 

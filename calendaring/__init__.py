@@ -37,7 +37,7 @@ _export("calendaring.core.units", "to_mpa", "to_um")
 _export("calendaring.core.fileio", "save_figure", "write_json", "write_text")
 _export("calendaring.core.config", "SimConfig", "format_override", "load_config",
         "load_config_dict", "load_preset", "pair_key", "parse_override", "with_overrides",
-        "config_hash")
+        "config_hash", "PRESETS")
 _export("calendaring.core.cli_contract", "ContractParser", "EXIT_BAD_INPUT", "EXIT_BUG",
         "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_UNSTABLE", "input_file", "input_folder",
         "integer", "output_path", "real", "run_cli")

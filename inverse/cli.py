@@ -22,6 +22,7 @@ from pathlib import Path
 
 from calendaring import (
     EXIT_OK,
+    PRESETS,
     ConfigError,
     ContractParser,
     integer,
@@ -75,7 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--quiet", action="store_true", help="no progress output")
     v = sub.add_parser("verify", help="run the DEM at the calibrated parameters")
     v.add_argument("result", help="RESULT.json from `inverse calibrate`")
-    v.add_argument("--preset", choices=("quick", "paper", "tiny"), default="quick")
+    v.add_argument("--preset", choices=PRESETS, default="quick")
     v.add_argument("--seeds", type=int, default=1, help="DEM seeds at the optimum")
     v.add_argument("--draws", type=int, default=0, help="posterior draws to run (one seed)")
     v.add_argument("--first-seed", type=int, default=0)

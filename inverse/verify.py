@@ -1,6 +1,6 @@
 """Forward verification: run the DEM at calibrated parameters and compare with the target.
 
-``inverse verify RESULT.json --preset quick|paper|tiny [--seeds K] [--draws M]`` runs
+``inverse verify RESULT.json --preset PRESET [--seeds K] [--draws M]`` runs
 ``calendaring run --preset P --set breakage.<name>=<value> ... --seed S --out RUN.h5`` as a
 subprocess for K seeds at the calibrated parameters and one seed at each of M posterior draws
 (from the result's ``posterior.draws_physical``), resamples each run's top-plate pressure onto
@@ -21,11 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calendaring import ConfigError
+from calendaring import PRESETS, ConfigError
 from inverse.report import read_result, write_json
 from inverse.targets import Target, interval_means, smooth_valid
-
-PRESETS = ("tiny", "quick", "paper")
 
 
 def run_command(params: dict[str, float], preset: str, seed: int, out: str | Path,

@@ -14,7 +14,8 @@ Typical use::
 Order of one step (spec 5.11), all in one kernel launch (``Kernels.step``): kick + drift +
 plate contacts, pair contacts and bonds (each writes its loads in its own slot; one loop
 over particles then sums them in a fixed order, without atomic adds on the particle loads;
-plate forces, the energy ledger, stressing work banked by ending contacts and the order of
+plate forces and the energy ledger are summed by chunks of items in a fixed order; stressing
+work banked by ending contacts, energy released by failing bonds and the order of
 simultaneous breakage events still use atomics, so runs on different thread counts agree
 to rounding, not bit for bit), then the breakage test (stressing energy, events, damage).
 Back on the host: every ``rebuild_check_interval`` steps the device flags are acted on (a

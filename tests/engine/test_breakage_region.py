@@ -61,8 +61,9 @@ def _bed(local: bool) -> Simulation:
 
 def _doom(sim, slot, factor, rp=4e-6):
     """AM sphere ``slot`` (radius ``rp``) breaks at its next step with E_k = factor E50."""
-    e50 = float(bk.e50(2 * rp, sim.cfg.materials["AM"], sim.cfg.breakage))
-    sim.pool.stress_bank[slot] = factor * e50 * 4740.0 * 4 / 3 * math.pi * rp**3
+    am = sim.cfg.materials["AM"]
+    e50 = float(bk.e50(2 * rp, am, sim.cfg.breakage))
+    sim.pool.stress_bank[slot] = factor * e50 * am.density * 4 / 3 * math.pi * rp**3
     sim.pool.fracture_energy[slot] = 1.0
 
 
