@@ -24,6 +24,7 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 import tomllib
 import types
 import typing
@@ -44,6 +45,16 @@ FLOAT_LIMIT = 1e30  # no SI quantity of a calendering run comes near: beyond it 
 INT_LIMIT = 2**62  # every integer key fits a 64-bit device integer with room to add
 SEED_MAX = 2**32 - 1  # numerics.seed seeds NumPy's generators: an unsigned 32-bit value
 THREADS_MAX = 4096
+
+
+def available_cores() -> int:
+    """The cores this process may run on: its CPU affinity (``taskset``, a batch system's
+    cpuset, a pinned test worker), else every core of the machine. ``numerics.threads = 0``
+    means this many."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # no affinity interface (macOS, Windows)
+        return os.cpu_count() or 1
 
 
 def _check(key: str, value: float, ok: bool, allowed: str) -> None:
@@ -192,7 +203,7 @@ class NumericsConfig:
 
     arch: str = "cpu"  # Taichi backend: cpu, cuda or auto
     precision: str = "f64"  # floating-point precision of the state (f64 only, see README)
-    threads: int = 0  # CPU threads (0 = all cores)
+    threads: int = 0  # CPU threads (0 = every core this process may use)
     seed: int = 0  # random seed of the run
     timestep_fraction: float = 0.04  # dt / Rayleigh time of the smallest particle [-]
     density_scaling: float = 1.0  # mass scaling factor s (rho -> s rho) [-]; recorded in outputs

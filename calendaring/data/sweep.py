@@ -41,7 +41,6 @@ import contextlib
 import datetime
 import hashlib
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -53,6 +52,7 @@ import numpy as np
 
 from calendaring.core.config import (
     SimConfig,
+    available_cores,
     config_hash_excluding,
     config_json,
     format_override,
@@ -408,7 +408,7 @@ def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list
         client = Client(opt.scheduler)
         cluster = None
     else:
-        workers = opt.workers or max(1, (os.cpu_count() or 1) // max(1, opt.threads_per_run))
+        workers = opt.workers or max(1, available_cores() // max(1, opt.threads_per_run))
         # Tasks only wait on subprocesses, so thread workers in this process suffice
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=False,
                                dashboard_address=None)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import taichi as ti
 
+from calendaring.core.config import available_cores
 from calendaring.core.errors import ConfigError
 
 _STATE: dict = {"settings": None}
@@ -98,6 +99,7 @@ def init_taichi(
     if arch != "cuda":  # the CPU's thread pool ("auto" may fall back to the CPU)
         kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)
     ti.init(**kwargs)
+    memoise_source_positions()
     actual = "cuda" if ti.lang.impl.current_cfg().arch == ti.cuda else "cpu"
     if arch == "cuda" and actual != "cuda":
         ti.reset()
@@ -108,8 +110,52 @@ def init_taichi(
     return info
 
 
+def memoise_source_positions() -> bool:
+    """Make Taichi's compiler front end remember the source-position text of AST nodes.
+
+    Taichi 1.7 rebuilds every kernel of every new :class:`~calendaring.engine.simulation.
+    Simulation` from its Python syntax tree (the kernels are bound to that instance's
+    fields) before it looks in the offline cache, and for each node it formats a message
+    with the file, line and a caret under the code, for compile errors and debug info
+    (``ASTTransformerContext.get_pos_info``). A ``ti.func`` inlined in many kernels formats
+    the same message again each time; that formatting took about a third of the front
+    end's time. The message depends only on where the node sits in its file, so this
+    keeps one copy per position: the text handed to Taichi, and so the kernels and the
+    cache keys, are unchanged. Returns False (and changes nothing) on a Taichi without that
+    method.
+    """
+    try:
+        from taichi.lang.ast.ast_transformer_utils import ASTTransformerContext
+    except ImportError:
+        return False
+    original = getattr(ASTTransformerContext, "get_pos_info", None)
+    if original is None:
+        return False
+    if getattr(original, "memoised", False):
+        return True
+    memo: dict[tuple, str] = {}
+
+    def get_pos_info(ctx, node):
+        body = getattr(node, "body", None)
+        first = body[0].lineno if isinstance(body, list) and body else None
+        key = (ctx.file, ctx.lineno_offset, ctx.func.func.__name__, ctx.indent, len(ctx.src),
+               type(node).__name__, node.lineno, node.end_lineno, node.col_offset,
+               node.end_col_offset, first)
+        text = memo.get(key)
+        if text is None:
+            text = memo[key] = original(ctx, node)
+        return text
+
+    get_pos_info.memoised = True
+    get_pos_info.original = original
+    get_pos_info.__doc__ = original.__doc__
+    ASTTransformerContext.get_pos_info = get_pos_info
+    return True
+
+
 def cpu_pool_threads(threads: int) -> int:
-    """Taichi CPU worker threads for ``threads`` cores (0 = every core): one per core.
+    """Taichi CPU worker threads for ``threads`` cores (0 = every core this process may use,
+    :func:`available_cores`): one per core.
 
     The steps run as multi-step launches whose workers spin at barriers
     (``calendaring.engine.forces.Kernels.burst``); with more pool threads than cores two workers
@@ -118,7 +164,8 @@ def cpu_pool_threads(threads: int) -> int:
     with 4). (One launch per step, the path before multi-step launches, ran faster with two
     per core: a worker still asleep when a sub-millisecond loop starts leaves its core idle.)
     """
-    return threads or (os.cpu_count() or 1)
+    return threads or available_cores()
+
 
 
 def serial_loops(threads: int) -> bool:

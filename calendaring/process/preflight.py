@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calendaring.core.config import SimConfig
+from calendaring.core.config import SimConfig, available_cores
 from calendaring.core.errors import ConfigError
 
 FIXED_BYTES = 0.5e9
@@ -106,7 +106,7 @@ class Estimate:
 
 
 def _threads(cfg: SimConfig) -> int:
-    return cfg.numerics.threads or os.cpu_count() or 1
+    return cfg.numerics.threads or available_cores()
 
 
 def estimate(cfg: SimConfig) -> Estimate:
@@ -131,11 +131,12 @@ def estimate(cfg: SimConfig) -> Estimate:
         draws[name] = d
     n = sum(counts.values())
     slots = n
-    if breakage_enabled(cfg):
+    breaks = breakage_enabled(cfg)
+    brk = breakable_mask(cfg) if breaks else None
+    if breaks:
         if cfg.breakage.pool_capacity:
             slots = max(float(cfg.breakage.pool_capacity), n)
         else:
-            brk = breakable_mask(cfg)
             extra = 0.0
             for name, d in draws.items():
                 if brk[names.index(name)]:
@@ -154,8 +155,7 @@ def estimate(cfg: SimConfig) -> Estimate:
     t_r = [num.timestep_fraction * rayleigh_time(0.5 * diameter_bounds(size)[0],
                                                  cfg.materials[name], num.density_scaling)
            for name, size in el.sizes.items() if name in cfg.materials]
-    if breakage_enabled(cfg):
-        brk = breakable_mask(cfg)
+    if breaks:
         t_r += [fragment_timestep(cfg.breakage, cfg.materials[name], num.density_scaling)
                 for k, name in enumerate(names) if brk[k]]
     dt = min(t_r) if t_r else math.inf

@@ -15,6 +15,9 @@ from calendaring.core.errors import SimulationError
 from calendaring.engine.simulation import Simulation
 from tests.engine.helpers import frictionless_pair, random_gas
 
+# the workers of a launch on every core of this process: outside the pinned parallel workers
+pytestmark = pytest.mark.multicore
+
 
 def _gas_run(steps_per_launch, n_steps=6000, interval=1, chunks=6, callback_interval=0,
              **contact):

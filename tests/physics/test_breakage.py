@@ -17,6 +17,9 @@ from calendaring.engine.contact_params import COL, pair_table, plate_table, redu
 from calendaring.engine.simulation import Simulation
 from calendaring.engine.state import ParticlePool
 
+# the module fixture ``kernels`` keeps one simulation's fields for several tests
+pytestmark = pytest.mark.shared_taichi_runtime
+
 TABLE4 = {"gamma": 5.549, "e_inf": 2161.0, "d0": 9.396e-6, "phi": 2.587}
 
 
