@@ -20,6 +20,10 @@ from calendaring.core.errors import ConfigError
 
 _STATE: dict = {"settings": None}
 
+OFFLINE_CACHE_BYTES = 1 << 30
+"""Size of the offline kernel cache above which Taichi deletes its least recently used
+quarter [bytes]."""
+
 
 @dataclass(frozen=True)
 class BackendInfo:
@@ -88,6 +92,10 @@ def init_taichi(
         random_seed=seed,
         offline_cache=offline_cache,
         offline_cache_file_path=cache,
+        # Taichi deletes the least recently used quarter of the cache once it holds more
+        # than 100 MB (its default); the test suite alone compiles about 105 MB of kernels,
+        # so each full run evicted what the next one needed
+        offline_cache_max_size_of_files=OFFLINE_CACHE_BYTES,
         debug=debug,
         log_level=ti.WARN,
         # IEEE arithmetic: with fast math LLVM may reorder sums differently in two kernels
