@@ -35,7 +35,7 @@ case "$tier" in
     slow) select="slow" ;;
     all) select="" ;;
 esac
-workers=${CALENDARING_TEST_WORKERS:-$(python -c "import os; print(len(os.sched_getaffinity(0)))")}
+workers=${CALENDARING_TEST_WORKERS:-$(python -c "from calendaring.core.config import available_cores; print(available_cores())")}
 start=$(date +%s)
 if [ "$workers" -le 1 ]; then
     python -m pytest tests ${select:+-m "$select"} "${args[@]}"

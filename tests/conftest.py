@@ -46,6 +46,10 @@ if TEST_ARCH != "cpu":
 @pytest.fixture(scope="session", autouse=True)
 def taichi_runtime():
     """Initialise Taichi once for the whole session; returns the BackendInfo."""
+    return _start_taichi()
+
+
+def _start_taichi():
     return init_taichi(arch=TEST_ARCH, precision="f64", seed=0)
 
 
@@ -70,7 +74,7 @@ def _restart_taichi() -> None:
     from calendaring.engine.backend import reset_taichi
 
     reset_taichi()
-    init_taichi(arch=TEST_ARCH, precision="f64", seed=0)
+    _start_taichi()
 
 
 @pytest.fixture(scope="module", autouse=True)

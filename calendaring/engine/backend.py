@@ -175,7 +175,6 @@ def cpu_pool_threads(threads: int) -> int:
     return threads or available_cores()
 
 
-
 def serial_loops(threads: int) -> bool:
     """Whether the per-step loops run serialised: on the CPU backend with one thread only
     (a parallel loop's dispatch costs more than a small bed's work there). On CUDA every
