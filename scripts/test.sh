@@ -35,7 +35,7 @@ case "$tier" in
     slow) select="slow" ;;
     all) select="" ;;
 esac
-workers=${CALENDARING_TEST_WORKERS:-$(python -c "from calendaring.core.config import available_cores; print(available_cores())")}
+workers=${CALENDARING_TEST_WORKERS:-$(python -c "from calendaring.core.config import available_cores; print(available_cores())" | tail -n 1)}
 start=$(date +%s)
 if [ "$workers" -le 1 ]; then
     python -m pytest tests ${select:+-m "$select"} "${args[@]}"

@@ -18,7 +18,7 @@ import taichi as ti
 from calendaring.core.config import available_cores
 from calendaring.core.errors import ConfigError
 
-_STATE: dict = {"settings": None}
+_STATE: dict = {"settings": None, "optimise": True}
 
 OFFLINE_CACHE_BYTES = 1 << 30
 """Size of the offline kernel cache above which Taichi deletes its least recently used
@@ -34,6 +34,25 @@ class BackendInfo:
     threads: int  # CPU threads (0 = Taichi default)
     seed: int
     cache_dir: str
+
+
+def set_kernel_optimisation(full: bool) -> None:
+    """Choose, for the whole process, how much Taichi optimises the kernels it compiles.
+
+    ``full=True`` (the default, and what every run, sweep and benchmark uses): Taichi's
+    advanced IR optimisations. ``full=False`` turns them off: a kernel compiles about 3 x
+    faster (the multi-step launch of a small bed: 9.3 -> 3.2 s on one x86 core) and runs
+    about 10 % slower (the benchmark bed: 544 -> 494 steps/s on one thread). The results
+    are those of the same source; the test suite uses it in its own processes (the runs
+    it starts as subprocesses keep the full optimisation). The kernels of each setting
+    have their own keys in the offline cache. Takes effect at the next
+    :func:`init_taichi`; raises RuntimeError while the runtime is up with the other one.
+    """
+    full = bool(full)
+    if _STATE["settings"] is not None and _STATE["optimise"] != full:
+        raise RuntimeError("Taichi is running with the other kernel optimisation; call "
+                           "calendaring.engine.backend.reset_taichi() first")
+    _STATE["optimise"] = full
 
 
 def default_cache_dir() -> Path:
@@ -74,7 +93,7 @@ def init_taichi(
     if precision != "f64":
         raise ConfigError("numerics.precision", precision, "f64")
     cache = str(cache_dir or default_cache_dir())
-    key = (arch, precision, seed, threads, offline_cache, cache, debug)
+    key = (arch, precision, seed, threads, offline_cache, cache, debug, _STATE["optimise"])
     if _STATE["settings"] is not None:
         if _STATE["settings"][0] == key:
             return _STATE["settings"][1]
@@ -103,6 +122,7 @@ def init_taichi(
         # then drift apart in the last bits) and may drop NaN tests (the guards); it
         # measured no faster here
         fast_math=False,
+        advanced_optimization=_STATE["optimise"],
     )
     if arch != "cuda":  # the CPU's thread pool ("auto" may fall back to the CPU)
         kwargs["cpu_max_num_threads"] = cpu_pool_threads(threads)

@@ -1,5 +1,5 @@
-"""The runtime's start-up helpers: the cores a run may use and the memoised source positions
-of Taichi's compiler front end."""
+"""The runtime's start-up helpers: the cores a run may use, the memoised source positions
+of Taichi's compiler front end and the kernel optimisation setting."""
 
 import os
 
@@ -56,3 +56,63 @@ def test_memoised_positions_are_the_text_taichi_formats(monkeypatch):
         sim.destroy()
     assert calls[0] > 10_000  # the kernels were built here, not found already built
     assert wrong == []
+
+
+def _pressed_lattice_state(steps: int) -> dict:
+    """128 slightly overlapping spheres on an 8 x 8 x 2 lattice, random velocities, the top
+    plate pressing on them: every contact term works from the first step."""
+    rng = np.random.default_rng(2)
+    a = 60e-6 / 8
+    g = (np.arange(8) + 0.5) * a
+    x, y, z = np.meshgrid(g, g, (np.arange(2) + 0.5) * a, indexing="ij")
+    pos = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(0, 0.01 * a,
+                                                                           (128, 3))
+    sim = Simulation(frictionless_pair(restitution=0.5, plasticity=0.5, friction=0.3,
+                                       rolling=0.05), capacity=128)
+    try:
+        sim.add_particles(pos, rng.uniform(0.5, 0.508, 128) * a, np.arange(128) % 2,
+                          velocity=rng.normal(0, 0.5, (128, 3)))
+        sim.set_top_plate(z=2 * a, velocity=-2.0)
+        sim.run(steps)
+        out = sim.state()
+        out["top_force"] = sim.plate_forces()[1]
+        out["energy"] = np.array(list(sim.energy().values()), float)
+        return out
+    finally:
+        sim.destroy()
+
+
+def test_kernel_optimisation_is_one_setting_per_runtime_and_keeps_the_results():
+    """The test processes compile without Taichi's advanced optimisations (tests/conftest.py);
+    users' runs compile with them. One setting holds per runtime, and the same run gives
+    the same numbers under both."""
+    from taichi.lang import impl
+
+    from calendaring.engine import backend
+
+    arch = os.environ.get("CALENDARING_TEST_ARCH", "cpu")
+    mine = backend._STATE["optimise"]
+    _pressed_lattice_state(0)  # the runtime is up
+    assert impl.current_cfg().advanced_optimization == mine
+    with pytest.raises(RuntimeError, match="other kernel optimisation"):
+        backend.set_kernel_optimisation(not mine)
+    backend.set_kernel_optimisation(mine)  # the setting in force: accepted
+    runs = {}
+    try:
+        for full in (mine, not mine):
+            backend.reset_taichi()
+            backend.set_kernel_optimisation(full)
+            backend.init_taichi(arch=arch, precision="f64", seed=0)
+            assert impl.current_cfg().advanced_optimization == full
+            runs[full] = _pressed_lattice_state(300)
+    finally:
+        backend.reset_taichi()
+        backend.set_kernel_optimisation(mine)
+        backend.init_taichi(arch=arch, precision="f64", seed=0)
+    a, b = runs[True], runs[False]
+    assert a["n_contacts"].sum() > 500 and a["top_force"][2] > 0.0  # contacts at work
+    assert a["energy"].min() >= 0.0 and np.count_nonzero(a["energy"]) >= 10
+    # the IR optimisations change how the arithmetic is scheduled, not what it computes:
+    # identical to the bit (Taichi 1.7.4, x86 CPU)
+    for key in ("position", "velocity", "angular_velocity", "top_force", "energy"):
+        np.testing.assert_array_equal(b[key], a[key], err_msg=key)
