@@ -212,6 +212,10 @@ class NumericsConfig:
     steps_per_launch: int = 1024  # CPU: most steps per kernel launch (1 = one launch per step)
     max_overlap_fraction: float = 0.5  # stop if overlap > this x smaller radius [-]
     pairs_per_particle: int = 12  # initial candidate-pair capacity per particle slot
+    # re-store the particles along the space-filling curve (dead slots dropped) at the
+    # first neighbour rebuild after the slots appended since the last sort (fragments)
+    # reach this fraction of the slots sorted then (0 = never)
+    resort_fraction: float = 0.1
     track_energy: bool = True  # accumulate the energy ledger every step
     offline_cache: bool = True  # keep compiled kernels on disk
 
@@ -235,6 +239,8 @@ class NumericsConfig:
         _check("max_overlap_fraction", o, 0.0 < o <= 2.0, "in (0, 2]")
         p = self.pairs_per_particle
         _check("pairs_per_particle", p, 1 <= p <= 1000, "in [1, 1000]")
+        r = self.resort_fraction
+        _check("resort_fraction", r, 0.0 <= r <= 10.0, "in [0, 10] (0 = never)")
 
 
 SIZE_DISTRIBUTIONS = ("constant", "normal", "lognormal", "table")

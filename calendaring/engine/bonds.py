@@ -182,25 +182,44 @@ class BondTable:
         self.n_bonds[None] = k
         self.released[None] = float(arrays["released"])
         if self.particle_capacity:
-            self._build_lists(full["slot_a"][:k], full["slot_b"][:k])
+            self._build_lists(full["slot_a"][:k], full["slot_b"][:k], full["state"][:k])
 
-    def _build_lists(self, slot_a: np.ndarray, slot_b: np.ndarray) -> None:
-        """Per-slot bond lists (bonds never change slots: they are made once)."""
+    def _build_lists(self, slot_a: np.ndarray, slot_b: np.ndarray, state: np.ndarray) -> None:
+        """Per-slot lists of the intact bonds, by bond index. A bond that fails or loses a
+        particle later stays listed, with zero loads, until the lists are built again
+        (:meth:`load`, :meth:`move_slots`); one that has failed already is left out (its
+        loads are zero: the sums are the same to the bit), and so is its slot, which may
+        be gone (``-1``) after :meth:`move_slots`."""
         k = len(slot_a)
-        slots = np.concatenate([slot_a, slot_b]).astype(np.int64)
-        if k and slots.max() >= self.particle_capacity:
-            raise ValueError(f"bond slot {slots.max()} >= particle capacity "
-                             f"{self.particle_capacity}")
-        index = np.concatenate([np.arange(k), np.arange(k)])
-        entry = np.concatenate([np.arange(k), -np.arange(k) - 1]).astype(np.int32)
+        keep = np.nonzero(np.asarray(state)[:k] == INTACT)[0]
+        slots = np.concatenate([slot_a[keep], slot_b[keep]]).astype(np.int64)
+        bad = slots[(slots < 0) | (slots >= self.particle_capacity)]
+        if len(bad):
+            raise ValueError(f"intact bond with slot {bad[0]} outside [0, "
+                             f"{self.particle_capacity})")
+        index = np.concatenate([keep, keep])
+        entry = np.concatenate([keep, -keep - 1]).astype(np.int32)
         order = np.lexsort((index, slots))
         count = np.bincount(slots, minlength=self.particle_capacity).astype(np.int32)
         start = (np.cumsum(count) - count).astype(np.int32)
         full = np.zeros(2 * self.capacity, np.int32)
-        full[:2 * k] = entry[order]
+        full[:len(entry)] = entry[order]
         self.list_entry.from_numpy(full)
         self.list_start.from_numpy(start)
         self.list_count.from_numpy(count)
+
+    def move_slots(self, new_of_old: np.ndarray) -> None:
+        """The particles moved: slot ``s`` is now ``new_of_old[s]`` (-1: the particle is gone).
+        Every intact bond must keep both particles; the others get -1 for a gone one."""
+        arrays = self.to_numpy()
+        for side in ("slot_a", "slot_b"):
+            old = arrays[side]
+            arrays[side] = np.where(old >= 0, new_of_old[np.maximum(old, 0)], -1).astype(
+                np.int32)
+        lost = (arrays["state"] == INTACT) & ((arrays["slot_a"] < 0) | (arrays["slot_b"] < 0))
+        if lost.any():
+            raise ValueError(f"{int(lost.sum())} intact bond(s) lose a particle in the move")
+        self.load(arrays)
 
     def to_numpy(self) -> dict:
         """Every bond array for the bonds in use, plus ``n_bonds`` and ``released``."""

@@ -154,6 +154,51 @@ class ContactTable:
             getattr(self, name).from_numpy(getattr(other, "old_" + name).to_numpy())
         self.n_pairs[None] = n
 
+    def move_slots(self, new_of_old: np.ndarray, pid: np.ndarray) -> None:
+        """The particles moved: slot ``s`` is now ``new_of_old[s]`` (-1: the particle is
+        gone); ``pid`` holds the ids by new slot.
+
+        Each pair keeps its history under its new owner, the lower of its two new slots. A
+        pair whose particles change order swaps its per-side bookkeeping (``work_a`` /
+        ``work_b``, ``event_a`` / ``event_b``) and the sign of its tangential spring (the
+        spring is the force on the owner, and the normal, the relative velocity and so the
+        spring all turn over with the order). Pairs with a gone particle are dropped: their
+        contact ended when the particle died (``end_dead_contacts``). The table is then in
+        the state a rebuild starts from (owner segments, partner ids); call
+        :meth:`~calendaring.engine.simulation.Simulation.rebuild` next."""
+        n = int(self.n_pairs[None])
+        a = new_of_old[self.owner.to_numpy()[:n]]
+        b = new_of_old[self.partner.to_numpy()[:n]]
+        keep = np.nonzero((a >= 0) & (b >= 0))[0]
+        a, b = a[keep], b[keep]
+        swap = a > b
+        owner, partner = np.where(swap, b, a), np.where(swap, a, b)
+        order = np.lexsort((partner, owner))
+        m = len(order)
+        rows = keep[order]
+        swapped = swap[order]
+        columns = {name: getattr(self, name).to_numpy()[:n][rows]
+                   for name in (*PAIR_F64, *PAIR_I32)}
+        spring = self.spring.to_numpy()[:n][rows]
+        spring[swapped] *= -1.0
+        for x, y in (("work_a", "work_b"), ("event_a", "event_b")):
+            columns[x], columns[y] = (np.where(swapped, columns[y], columns[x]),
+                                      np.where(swapped, columns[x], columns[y]))
+        owner, partner = owner[order], partner[order]
+        columns.update(owner=owner, partner=partner, partner_id=pid[partner])
+        for name, values in columns.items():
+            field = getattr(self, name)
+            full = np.zeros_like(field.to_numpy())
+            full[:m] = values
+            field.from_numpy(full)
+        full = np.zeros((self.capacity, 3))
+        full[:m] = spring
+        self.spring.from_numpy(full)
+        count = np.bincount(owner, minlength=self.particle_capacity).astype(np.int32)
+        self.seg_count.from_numpy(count)
+        self.seg_start.from_numpy((np.cumsum(count) - count).astype(np.int32))
+        self.n_pairs[None] = m
+
     # ------------------------------------------------------------- rebuild kernels
     @ti.kernel
     def save_history(self, pool: ti.template()):

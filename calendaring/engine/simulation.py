@@ -110,6 +110,8 @@ class Simulation:
         self._primed = False
         self._r_max = 0.0
         self.n_rebuilds = 0
+        self.n_resorts = 0  # re-stores along the space-filling curve (:meth:`resort`)
+        self._sorted_slots = 0  # slots in use after the last host insertion or resort
         self.gravity = float(cfg.domain.gravity)  # body force per unit mass along -z [m s^-2]
         self.bonds = None  # BondTable once create_bonds() ran
         self.check_interval = cfg.numerics.rebuild_check_interval  # steps between host checks
@@ -185,6 +187,7 @@ class Simulation:
             perm = space_filling_order(position, d.cell_x, d.cell_y)
         ids = self.pool.add(position, radius, material, mass, velocity=velocity,
                             angular_velocity=angular_velocity, order=perm)
+        self._sorted_slots = self.pool.slots_used
         if radius.size and radius.max() > self._r_max:
             reach = 2 * radius.max() + self.cfg.numerics.skin
             if self.grid is not None and reach > self.grid.cutoff:
@@ -278,6 +281,57 @@ class Simulation:
         self.table.reset_displacements(self.pool)
         self.kernels.need_rebuild[None] = 0
         self.n_rebuilds += 1
+
+    def _resort_due(self) -> bool:
+        """The slots appended since the last sort (fragments, at the tail of the pool) have
+        reached ``numerics.resort_fraction`` of the slots sorted then."""
+        f = self.cfg.numerics.resort_fraction
+        appended = self.pool.slots_used - self._sorted_slots
+        return f > 0.0 and appended > 0 and appended >= f * self._sorted_slots
+
+    @_timed("resort")
+    def resort(self) -> None:
+        """Store the live particles along the space-filling curve again, in slots
+        ``0 .. n_alive - 1`` (the slots of dead parents are dropped), then rebuild.
+
+        Fragments are appended at the tail of the pool, so as a bed breaks, the particles
+        close in space drift apart in memory and the step's loops reuse less of their
+        cached data. Every per-particle array moves with its particle; each contact keeps
+        its history and each bond its state under the new slots
+        (:meth:`ContactTable.move_slots`, :meth:`BondTable.move_slots`); ids do not change.
+        The physics is the same; a particle's contacts are summed in a new order, so the
+        run departs from an unsorted one by round-off (tested). A run calls it at the end
+        of a replacement step once the fragments appended since the last sort reach
+        ``numerics.resort_fraction`` of the slots sorted then: the parents' contacts have
+        been ended and their bonds removed by then.
+        """
+        from calendaring.engine.state import SCALAR_FIELDS, VEC_FIELDS
+
+        if self.grid is None or self.table is None:
+            raise SimulationError("resort needs a primed simulation")
+        self._ensure_breakage()  # fracture energies drawn for every slot before they move
+        n = self.pool.slots_used
+        pos = self.pool.position.to_numpy()[:n]
+        live = np.nonzero(self.pool.alive.to_numpy()[:n] == 1)[0]
+        d = self.cfg.domain
+        order = live[space_filling_order(pos[live], d.cell_x, d.cell_y)]
+        m = len(order)
+        new_of_old = np.full(n, -1, np.int64)
+        new_of_old[order] = np.arange(m)
+        for name in (*SCALAR_FIELDS, *VEC_FIELDS):
+            f = getattr(self.pool, name)
+            full = f.to_numpy()
+            full[:m] = full[order]
+            full[m:n] = 0  # the freed slots as a fresh pool has them
+            f.from_numpy(full)
+        self.pool.n_slots[None] = m
+        self.table.move_slots(new_of_old, self.pool.pid.to_numpy()[:m])
+        if self.bonds is not None:
+            self.bonds.move_slots(new_of_old)
+        self._fracture_init_upto = m
+        self._sorted_slots = m
+        self.n_resorts += 1
+        self.rebuild()
 
     # ------------------------------------------------------------------ stepping
     def _advance(self, kick: float, drift: float) -> None:
@@ -375,6 +429,8 @@ class Simulation:
             self.breakage_ledger += before - after
             # the plastic work done so far is unchanged by the replacement
             self.kernels.ledger[L_HYST] += ee_after - ee_before
+        if self._resort_due():
+            self.resort()
 
     def _recompute_forces(self) -> None:
         """Forces of the current step again at the same positions (after a replacement)."""
@@ -668,7 +724,7 @@ class Simulation:
     _HOST_STATE = ("z_bottom", "z_top", "v_top", "dt", "step_count", "time", "_primed",
                    "_first_kick", "_r_max", "n_rebuilds", "gravity", "check_interval",
                    "_fracture_init_upto", "breakage_ledger", "n_breakage_events",
-                   "breakage_active")
+                   "breakage_active", "n_resorts", "_sorted_slots")
 
     def save_state(self) -> dict:
         """Everything needed to continue this run bit for bit (host copies, no side effects).

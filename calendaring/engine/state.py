@@ -2,9 +2,12 @@
 fields the pair loop reads of both particles, kept together per slot: ``PAIR_READ``).
 
 Slots ``[0, n_slots)`` have been used; a slot holds a live particle while ``alive == 1``.
-Slots are never reused and ids are never reused: breakage kills a parent (``alive = 0``)
-and appends its fragments at the tail, so contact owners (the lower slot of a pair) stay
-valid between neighbour-list rebuilds.
+Ids are never reused. Breakage kills a parent (``alive = 0``) and appends its fragments at
+the tail, so contact owners (the lower slot of a pair) stay valid between neighbour-list
+rebuilds. Once the appended slots reach ``numerics.resort_fraction`` of the pool,
+:meth:`calendaring.engine.simulation.Simulation.resort` stores the live particles along the
+space-filling curve again and drops the dead slots, moving contact history and bonds with
+them.
 
 Insertion:
 - host: :meth:`ParticlePool.add` (arrays in, ids out; ``order`` sets which input goes to

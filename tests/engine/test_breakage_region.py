@@ -54,13 +54,15 @@ def _bed(local: bool) -> Simulation:
     sim.set_top_plate(z=21e-6, velocity=-1.0)
     sim.create_bonds()
     sim.start_breakage()
-    for slot, factor in ((0, 50.0), (4, 20.0)):
-        _doom(sim, slot, factor)
+    for pid, factor in ((0, 50.0), (4, 20.0)):
+        _doom(sim, pid, factor)
     return sim
 
 
-def _doom(sim, slot, factor, rp=4e-6):
-    """AM sphere ``slot`` (radius ``rp``) breaks at its next step with E_k = factor E50."""
+def _doom(sim, pid, factor, rp=4e-6):
+    """AM sphere ``pid`` (radius ``rp``) breaks at its next step with E_k = factor E50 (found
+    by id: a replacement may have moved it, see ``Simulation.resort``)."""
+    slot = int(np.nonzero(sim.pool.pid.to_numpy()[:sim.pool.slots_used] == pid)[0][0])
     am = sim.cfg.materials["AM"]
     e50 = float(bk.e50(2 * rp, am, sim.cfg.breakage))
     sim.pool.stress_bank[slot] = factor * e50 * am.density * 4 / 3 * math.pi * rp**3
