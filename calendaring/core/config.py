@@ -764,6 +764,14 @@ def config_hash(cfg: Any) -> str:
     return hashlib.sha256(config_json(cfg).encode()).hexdigest()
 
 
+def config_text_hash(text: str) -> str:
+    """sha256 of a stored configuration text (what :func:`config_hash` gave when it was
+    written). Readers check a file's ``config_hash`` against its own text, not against the
+    text this version would write: a key added since (with its default) must not make older
+    files look edited."""
+    return hashlib.sha256(str(text).encode()).hexdigest()
+
+
 def config_hash_excluding(cfg: Any, keys: Sequence[str]) -> str:
     """sha256 of the configuration without the dotted ``keys`` (whole sections or single
     keys): what two configurations must share for a settled bed or a dataset to be shared."""

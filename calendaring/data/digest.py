@@ -29,7 +29,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from calendaring.core.config import SimConfig, config_hash, load_config_dict
+from calendaring.core.config import SimConfig, config_text_hash, load_config_dict
 from calendaring.data.curves import resample_pressure
 from calendaring.process.runfile import RunFileError, RunRecord, _atomic_h5, incomplete_stroke
 
@@ -93,7 +93,7 @@ def write_digest(path: str | Path, rec: RunRecord) -> Path:
         a["run"] = rec.path.stem
         a["software_version"] = rec.software_version
         a["config"] = rec.config_json
-        a["config_hash"] = config_hash(rec.config)
+        a["config_hash"] = config_text_hash(rec.config_json)
         a["seed"] = int(rec.seed)
         a["preset"] = rec.preset
         a["breakage_model"] = rec.breakage_model
@@ -140,7 +140,7 @@ def read_digest(path: str | Path) -> Digest:
             from None
     try:
         cfg = load_config_dict(json.loads(str(a["config"])))
-        if config_hash(cfg) != str(a["config_hash"]):
+        if config_text_hash(a["config"]) != str(a["config_hash"]):
             raise RunFileError(path, "config does not match config_hash (edited or corrupt)")
         dg = Digest(path=path, run=str(a["run"]), software_version=str(a["software_version"]),
                     config=cfg, seed=int(a["seed"]), preset=str(a["preset"]),

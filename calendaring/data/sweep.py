@@ -120,8 +120,11 @@ def run_config(base: SimConfig, params: dict[str, float], seed: int) -> SimConfi
 
 def packing_key(cfg: SimConfig) -> str:
     """Hash of what the settled bed depends on: the configuration without the breakage,
-    protocol and output sections (seed included)."""
-    return config_hash_excluding(cfg, ("breakage", "protocol", "output"))[:16]
+    protocol and output sections (seed included) and without ``numerics.resort_fraction``
+    (a bed is settled before anything breaks; left out, the keys of sweeps made before the
+    key existed stay the same)."""
+    return config_hash_excluding(cfg, ("breakage", "protocol", "output",
+                                       "numerics.resort_fraction"))[:16]
 
 
 def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, seed: int,

@@ -82,7 +82,13 @@ import h5py
 import numpy as np
 
 from calendaring._version import __version__
-from calendaring.core.config import SimConfig, config_hash, config_json, load_config_dict
+from calendaring.core.config import (
+    SimConfig,
+    config_hash,
+    config_json,
+    config_text_hash,
+    load_config_dict,
+)
 
 FORMAT = "calendaring-run"
 CHECKPOINT_FORMAT = "calendaring-checkpoint"
@@ -399,7 +405,7 @@ def read_run(path: str | Path) -> RunRecord:
                                          "software_version", "config_hash")}
         except Exception as err:
             raise RunFileError(path, f"bad root attributes ({err})") from None
-        if config_hash(cfg) != scalars["config_hash"]:
+        if config_text_hash(cfg_text) != scalars["config_hash"]:
             raise RunFileError(path, "config does not match config_hash (edited or corrupt)")
         pressure = _read_group(f, path, "pressure", PRESSURE)
         unloading = _read_group(f, path, "unloading", UNLOADING)

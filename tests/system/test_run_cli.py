@@ -293,6 +293,32 @@ def test_reader_rejects_truncated_foreign_and_edited_files(tiny_run, tmp_path, c
         read_run(edited)
 
 
+def test_files_of_an_older_version_read_and_edited_configs_do_not(tiny_run, tmp_path):
+    """A file whose stored configuration lacks a key added since (here
+    ``numerics.resort_fraction``) reads, with the key's default; an edited configuration
+    text is refused."""
+    import hashlib
+
+    older = tmp_path / "older.h5"
+    shutil.copy(tiny_run, older)
+    with h5py.File(older, "a") as f:
+        cfg = json.loads(str(f.attrs["config"]))
+        del cfg["numerics"]["resort_fraction"]
+        text = json.dumps(cfg, sort_keys=True)
+        f.attrs["config"] = text
+        f.attrs["config_hash"] = hashlib.sha256(text.encode()).hexdigest()
+    rec = read_run(older)
+    assert rec.config.numerics.resort_fraction == 0.1
+    assert rec.config_json == text
+    edited = tmp_path / "edited-config.h5"
+    shutil.copy(older, edited)
+    cfg["numerics"]["skin"] *= 2
+    with h5py.File(edited, "a") as f:
+        f.attrs["config"] = json.dumps(cfg, sort_keys=True)
+    with pytest.raises(RunFileError, match="edited or corrupt"):
+        read_run(edited)
+
+
 def test_inspect_plot_and_export(tiny_run, tmp_path, capsys):
     assert main(["inspect", str(tiny_run), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
