@@ -212,8 +212,8 @@ class NumericsConfig:
     steps_per_launch: int = 1024  # CPU: most steps per kernel launch (1 = one launch per step)
     max_overlap_fraction: float = 0.5  # stop if overlap > this x smaller radius [-]
     pairs_per_particle: int = 12  # initial candidate-pair capacity per particle slot
-    # re-store the particles along the space-filling curve (dead slots dropped) at the
-    # first neighbour rebuild after the slots appended since the last sort (fragments)
+    # re-store the particles along the space-filling curve (dead slots dropped) at the end
+    # of the replacement step where the slots appended since the last sort (fragments)
     # reach this fraction of the slots sorted then (0 = never)
     resort_fraction: float = 0.1
     track_energy: bool = True  # accumulate the energy ledger every step

@@ -167,8 +167,10 @@ class ContactTable:
         the state a rebuild starts from (owner segments, partner ids); call
         :meth:`~calendaring.engine.simulation.Simulation.rebuild` next."""
         n = int(self.n_pairs[None])
-        a = new_of_old[self.owner.to_numpy()[:n]]
-        b = new_of_old[self.partner.to_numpy()[:n]]
+        full = {name: getattr(self, name).to_numpy() for name in
+                ("owner", "partner", "partner_id", "spring", *PAIR_F64, *PAIR_I32)}
+        a = new_of_old[full["owner"][:n]]
+        b = new_of_old[full["partner"][:n]]
         keep = np.nonzero((a >= 0) & (b >= 0))[0]
         a, b = a[keep], b[keep]
         swap = a > b
@@ -177,23 +179,17 @@ class ContactTable:
         m = len(order)
         rows = keep[order]
         swapped = swap[order]
-        columns = {name: getattr(self, name).to_numpy()[:n][rows]
-                   for name in (*PAIR_F64, *PAIR_I32)}
-        spring = self.spring.to_numpy()[:n][rows]
-        spring[swapped] *= -1.0
+        columns = {name: full[name][:n][rows] for name in ("spring", *PAIR_F64, *PAIR_I32)}
+        columns["spring"][swapped] *= -1.0
         for x, y in (("work_a", "work_b"), ("event_a", "event_b")):
             columns[x], columns[y] = (np.where(swapped, columns[y], columns[x]),
                                       np.where(swapped, columns[x], columns[y]))
         owner, partner = owner[order], partner[order]
         columns.update(owner=owner, partner=partner, partner_id=pid[partner])
         for name, values in columns.items():
-            field = getattr(self, name)
-            full = np.zeros_like(field.to_numpy())
-            full[:m] = values
-            field.from_numpy(full)
-        full = np.zeros((self.capacity, 3))
-        full[:m] = spring
-        self.spring.from_numpy(full)
+            full[name][:] = 0
+            full[name][:m] = values
+            getattr(self, name).from_numpy(full[name])
         count = np.bincount(owner, minlength=self.particle_capacity).astype(np.int32)
         self.seg_count.from_numpy(count)
         self.seg_start.from_numpy((np.cumsum(count) - count).astype(np.int32))

@@ -1,5 +1,7 @@
 """Small builders shared by the engine tests."""
 
+import math
+
 import numpy as np
 
 from calendaring.core.config import load_config_dict
@@ -43,3 +45,32 @@ def random_gas(sim: Simulation, n, r_lo, r_hi, seed, z_lo, z_hi, speed=0.0):
     pos, rad = np.array(pos), np.array(rad)
     vel = rng.normal(size=(len(rad), 3)) * speed
     return pos, rad, vel
+
+
+def jostled_lattice(side: int, layers: int, seed: int, cell: float = 60e-6):
+    """``side`` x ``side`` x ``layers`` slightly overlapping spheres on a jittered lattice
+    filling the ``cell`` (the periodic cell of :func:`frictionless_pair`), random velocities
+    of 0.5 m/s scale; returns (positions, radii, velocities, the height of the top layer's
+    tops, where a resting top plate goes)."""
+    rng = np.random.default_rng(seed)
+    n = side * side * layers
+    a = cell / side
+    g = (np.arange(side) + 0.5) * a
+    x, y, z = np.meshgrid(g, g, (np.arange(layers) + 0.5) * a, indexing="ij")
+    pos = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(0, 0.01 * a, (n, 3))
+    rad = rng.uniform(0.5, 0.508, n) * a
+    vel = rng.normal(0, 0.5, (n, 3))
+    return pos, rad, vel, layers * a
+
+
+def doom(sim: Simulation, pid: int, factor: float, radius: float = 4e-6) -> None:
+    """The AM sphere with id ``pid`` (of ``radius``) breaks at its next step, with stressing
+    energy ``factor`` x E50 and a unit fracture energy. Found by id: a replacement may have
+    moved it to another slot (``Simulation.resort``)."""
+    from calendaring.engine import breakage as bk
+
+    slot = int(np.nonzero(sim.pool.pid.to_numpy()[:sim.pool.slots_used] == pid)[0][0])
+    am = sim.cfg.materials["AM"]
+    e50 = float(bk.e50(2 * radius, am, sim.cfg.breakage))
+    sim.pool.stress_bank[slot] = factor * e50 * am.density * 4 / 3 * math.pi * radius**3
+    sim.pool.fracture_energy[slot] = 1.0

@@ -9,7 +9,7 @@ import pytest
 from calendaring.core.config import available_cores
 from calendaring.engine.backend import cpu_pool_threads, memoise_source_positions
 from calendaring.engine.simulation import Simulation
-from tests.engine.helpers import frictionless_pair, random_gas
+from tests.engine.helpers import frictionless_pair, jostled_lattice, random_gas
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="no CPU affinity interface")
@@ -61,18 +61,12 @@ def test_memoised_positions_are_the_text_taichi_formats(monkeypatch):
 def _pressed_lattice_state(steps: int) -> dict:
     """128 slightly overlapping spheres on an 8 x 8 x 2 lattice, random velocities, the top
     plate pressing on them: every contact term works from the first step."""
-    rng = np.random.default_rng(2)
-    a = 60e-6 / 8
-    g = (np.arange(8) + 0.5) * a
-    x, y, z = np.meshgrid(g, g, (np.arange(2) + 0.5) * a, indexing="ij")
-    pos = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(0, 0.01 * a,
-                                                                           (128, 3))
+    pos, rad, vel, top = jostled_lattice(8, 2, 2)
     sim = Simulation(frictionless_pair(restitution=0.5, plasticity=0.5, friction=0.3,
                                        rolling=0.05), capacity=128)
     try:
-        sim.add_particles(pos, rng.uniform(0.5, 0.508, 128) * a, np.arange(128) % 2,
-                          velocity=rng.normal(0, 0.5, (128, 3)))
-        sim.set_top_plate(z=2 * a, velocity=-2.0)
+        sim.add_particles(pos, rad, np.arange(128) % 2, velocity=vel)
+        sim.set_top_plate(z=top, velocity=-2.0)
         sim.run(steps)
         out = sim.state()
         out["top_force"] = sim.plate_forces()[1]

@@ -7,15 +7,14 @@ the parents, the fragments and every particle touching or bonded to a parent
 change, so both give the same ledger to round-off, while the dynamics are untouched.
 """
 
-import math
 
 import numpy as np
 import pytest
 
 from calendaring.core.config import load_config_dict
-from calendaring.engine import breakage as bk
 from calendaring.engine.kernels.constants import L_HYST
 from calendaring.engine.simulation import Simulation
+from tests.engine.helpers import doom
 
 
 def _cfg():
@@ -55,18 +54,8 @@ def _bed(local: bool) -> Simulation:
     sim.create_bonds()
     sim.start_breakage()
     for pid, factor in ((0, 50.0), (4, 20.0)):
-        _doom(sim, pid, factor)
+        doom(sim, pid, factor)
     return sim
-
-
-def _doom(sim, pid, factor, rp=4e-6):
-    """AM sphere ``pid`` (radius ``rp``) breaks at its next step with E_k = factor E50 (found
-    by id: a replacement may have moved it, see ``Simulation.resort``)."""
-    slot = int(np.nonzero(sim.pool.pid.to_numpy()[:sim.pool.slots_used] == pid)[0][0])
-    am = sim.cfg.materials["AM"]
-    e50 = float(bk.e50(2 * rp, am, sim.cfg.breakage))
-    sim.pool.stress_bank[slot] = factor * e50 * am.density * 4 / 3 * math.pi * rp**3
-    sim.pool.fracture_energy[slot] = 1.0
 
 
 def test_region_energy_of_a_replacement_matches_the_whole_bed():
@@ -76,7 +65,7 @@ def test_region_energy_of_a_replacement_matches_the_whole_bed():
         try:
             assert sim.bonds is not None and int(sim.bonds.n_bonds[None]) > 10
             sim.run(5)
-            _doom(sim, 3, 30.0)
+            doom(sim, 3, 30.0)
             sim.run(55)
             events = sim.take_breakage()
             total = sim.energy()

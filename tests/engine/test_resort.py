@@ -10,8 +10,8 @@ import pytest
 import calendaring.engine.simulation as simulation
 from calendaring.core.config import load_config_dict
 from calendaring.core.errors import ConfigError
-from calendaring.engine import breakage as bk
 from calendaring.engine.simulation import Simulation
+from tests.engine.helpers import doom
 
 RP = 4e-6  # AM radius [m]
 
@@ -22,15 +22,6 @@ def _cfg(resort_fraction: float):
         "numerics": {"timestep_fraction": 0.2, "rebuild_check_interval": 1,
                      "resort_fraction": resort_fraction},
         "breakage": {"fragment_timestep_fraction": 0.3}})
-
-
-def _doom(sim, pid, factor):
-    """The AM sphere with id ``pid`` breaks at its next step with E_k = factor E50."""
-    slot = int(np.nonzero(sim.pool.pid.to_numpy()[:sim.pool.slots_used] == pid)[0][0])
-    am = sim.cfg.materials["AM"]
-    e50 = float(bk.e50(2 * RP, am, sim.cfg.breakage))
-    sim.pool.stress_bank[slot] = factor * e50 * am.density * 4 / 3 * math.pi * RP**3
-    sim.pool.fracture_energy[slot] = 1.0
 
 
 def _bed(resort_fraction: float = 0.0) -> Simulation:
@@ -57,8 +48,8 @@ def _bed(resort_fraction: float = 0.0) -> Simulation:
     sim.set_top_plate(z=19e-6, velocity=-1.0)
     sim.create_bonds()
     sim.start_breakage()
-    _doom(sim, 0, 50.0)
-    _doom(sim, 4, 20.0)
+    doom(sim, 0, 50.0)
+    doom(sim, 4, 20.0)
     return sim
 
 
@@ -92,7 +83,7 @@ def _run(resort: bool, reverse: bool, monkeypatch) -> dict:
     try:
         sim.run(3)  # the two parents broke at the first step; fragments at the tail
         assert sim.n_breakage_events == 2
-        _doom(sim, 2, 30.0)  # a third one breaks after the move
+        doom(sim, 2, 30.0)  # a third one breaks after the move
         slots_before = sim.pool.slots_used
         contacts_before = _contacts_by_ids(sim)
         if resort:

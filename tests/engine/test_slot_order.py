@@ -7,7 +7,7 @@ from calendaring.core.errors import ConfigError
 from calendaring.engine.contacts import brute_force_pairs
 from calendaring.engine.neighbours import space_filling_order
 from calendaring.engine.simulation import Simulation
-from tests.engine.helpers import frictionless_pair, random_gas
+from tests.engine.helpers import frictionless_pair, jostled_lattice, random_gas
 
 
 def test_space_filling_order_halves_and_quarters_are_slabs_across_x_then_y():
@@ -95,20 +95,6 @@ def test_unknown_order_is_refused():
         sim.destroy()
 
 
-def _jostled_lattice():
-    """1,024 slightly overlapping spheres on a jittered 16 x 16 x 4 lattice with random
-    velocities, and the top plate resting on the top layer: ~2,500 contacts at once."""
-    rng = np.random.default_rng(4)
-    a = 60e-6 / 16
-    g = (np.arange(16) + 0.5) * a
-    x, y, z = np.meshgrid(g, g, (np.arange(4) + 0.5) * a, indexing="ij")
-    pos = np.column_stack([x.ravel(), y.ravel(), z.ravel()]) + rng.normal(0, 0.01 * a,
-                                                                           (1024, 3))
-    rad = rng.uniform(0.5, 0.508, 1024) * a
-    vel = rng.normal(0, 0.5, (1024, 3))
-    return pos, rad, vel, 4 * a
-
-
 def test_slot_order_does_not_change_the_physics():
     # the same jostled bed stored in input order and along the curve, squeezed by the top
     # plate: a step sums a particle's contacts in slot order, so the runs differ by
@@ -118,7 +104,7 @@ def test_slot_order_does_not_change_the_physics():
         cfg = frictionless_pair(restitution=0.7, friction=0.4, rolling=0.05)
         sim = Simulation(cfg, capacity=1100)
         try:
-            pos, rad, vel, top = _jostled_lattice()
+            pos, rad, vel, top = jostled_lattice(16, 4, 4)  # ~2,500 contacts at once
             sim.add_particles(pos, rad, np.arange(len(rad)) % 2, velocity=vel, order=order)
             sim.set_top_plate(z=top, velocity=-2.0)
             sim.run(1500)
