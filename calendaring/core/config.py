@@ -377,6 +377,7 @@ class BondsConfig:
 
 TRUNCATION_MODES = ("ratio", "percentile", "complement")
 SIBLING_INITS = ("force_free", "fresh")
+EVENT_END_RULES = ("quiet", "release")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -402,7 +403,14 @@ class BreakageConfig:
     device_poisson_ratio: float = 0.3  # (steel; Eq. 33-34 k_s)
     shear_weight: float = 0.0  # c_t [-] of Eq. 38 ([A] 0: normal work only)
     min_specific_energy: float = 0.0  # E_min [J/kg]: weaker events cause no damage ([A] 0)
-    event_end_steps: int = 10  # N_end: steps without a loading contact that close an event
+    event_end_steps: int = 10  # N_end of the "quiet" rule [steps]
+    # [A] when a particle's loading event ends (spec 5.4): "quiet" (the spec's rule) after
+    # event_end_steps steps in a row without a loading contact, or with no contact; "release"
+    # once no contact presses on the particle (every repulsive hysteretic force zero:
+    # separated, or unloaded to the plastic overlap). In a jostling bed "quiet" ends events at
+    # a rate per unit of time, so breakage depends on the plate speed; "release" has no time
+    # scale (the presets use it; benchmarks/README, "Loading events and the plate speed")
+    event_end_rule: str = "quiet"
     min_fragment_diameter: float = 2.0e-6  # d_min [m]: smallest fragment (spec 5.9)
     min_breakable_diameter: float = 4.0e-6  # d_break,min [m]: smaller particles never break
     sibling_init: str = "force_free"  # [A] overlapping fragments start force-free | fresh
@@ -435,6 +443,8 @@ class BreakageConfig:
                ">= 0 J/kg")
         _check("event_end_steps", self.event_end_steps, 1 <= self.event_end_steps <= 10**6,
                "in [1, 1e6]")
+        _check("event_end_rule", self.event_end_rule, self.event_end_rule in EVENT_END_RULES,
+               f"one of {EVENT_END_RULES}")
         _check("min_breakable_diameter", self.min_breakable_diameter,
                self.min_breakable_diameter >= 2 * self.min_fragment_diameter,
                f">= 2 x min_fragment_diameter = {2 * self.min_fragment_diameter} m (two "

@@ -5,8 +5,10 @@ Per step, after the contact forces (spec 5.11):
 1. :meth:`BreakageKernels.events` over the breakable particles: the specific stressing
    energy ``E_k = (B + sum_c e_c W_c) / m`` (the contact sums are accumulated by the force
    kernels, :mod:`calendaring.engine.forces`), the particle's lifetime peak of the total contact
-   normal force, loading events (open while a contact loads; closed after
-   ``breakage.event_end_steps`` steps without one, or when the particle has no contact),
+   normal force, loading events (opened when a contact loads; closed by
+   ``breakage.event_end_rule``: ``"quiet"`` after ``breakage.event_end_steps`` steps in a
+   row without a loading contact or when the particle has no contact, ``"release"`` once
+   no contact presses on it),
    damage at the end of an event (Eq. 36 solved by bisection, spec 5.5) and the breakage
    test ``E_k >= E'_f`` (5.6). Breaking parents go to a list; it returns their number.
 2. Only when that number is > 0, :meth:`BreakageKernels.replace` (one kernel): progeny sizes
@@ -79,6 +81,7 @@ class BreakageKernels:
         self.trunc = float(factor) if self.truncated else 0.0
         self.e_min = float(b.min_specific_energy)
         self.n_end = int(b.event_end_steps)
+        self.end_when_quiet = b.event_end_rule == "quiet"
         self.d_min = float(b.min_fragment_diameter)
         self.d_break = float(b.min_breakable_diameter)
         self.force_free = b.sibling_init == "force_free"
@@ -434,11 +437,17 @@ class BreakageKernels:
         if broke == 0:
             if pool.event_open[i]:
                 pool.event_max[i] = ti.max(pool.event_max[i], ek)
-                if pool.loading[i]:
-                    pool.event_quiet[i] = 0
-                else:
-                    pool.event_quiet[i] += 1
-                if pool.event_quiet[i] >= ti.static(self.n_end) or pool.n_contacts[i] == 0:
+                ending = 0
+                if ti.static(self.end_when_quiet):
+                    if pool.loading[i]:
+                        pool.event_quiet[i] = 0
+                    else:
+                        pool.event_quiet[i] += 1
+                    ending = ((pool.event_quiet[i] >= ti.static(self.n_end))
+                              | (pool.n_contacts[i] == 0))
+                else:  # "release": no contact presses on the particle any more
+                    ending = pool.pressed[i] == 0
+                if ending:
                     e_ev = pool.event_max[i]
                     if e_ev > ti.static(self.e_min) and e_ev > 0.0:
                         d = self.damage(e_ev / pool.fracture_energy[i])
@@ -571,6 +580,7 @@ class BreakageKernels:
             self._clear_events(pool, s)
             pool.event_id[s] = 0
             pool.loading[s] = 0
+            pool.pressed[s] = 0
             pool.damage_events[s] = 0
             pool.birth_step[s] = step
         pool.alive[p] = 0

@@ -97,6 +97,8 @@ class Kernels(BurstScheduler, ParticlePhase, PairPhase, StressingWork, EnergyLed
         # some material can break
         self.breakage = breakage_enabled(cfg)
         self.shear_weight = float(cfg.breakage.shear_weight)
+        # events end on release: the force kernels flag the particles some contact presses on
+        self.track_pressed = self.breakage and cfg.breakage.event_end_rule == "release"
         self.n_mat = len(cfg.materials)
         ncol = len(COLUMNS)
         fb = ti.FieldsBuilder()

@@ -62,6 +62,7 @@ SCALAR_FIELDS = {
     "event_quiet": ti.i32,  # steps since a contact of the open event last loaded
     "event_id": ti.i32,  # events closed so far (contact work of older events is stale)
     "loading": ti.i32,  # some contact of the particle loaded this step
+    "pressed": ti.i32,  # some contact pressed on the particle this step (f_hys > 0; "release")
     "damage_events": ti.i32,  # events that damaged the particle
     "birth_step": ti.i32,  # step at which a fragment was created (-1 for originals)
 }

@@ -103,30 +103,55 @@ def test_t9_contact_work_on_loading_unloading_and_small_cycles():
 
 
 # ---------------------------------------------------------------- T10 breakage force
-def test_t10_single_particle_breaks_at_the_analytic_force():
-    cfg = _cfg()
-    r = 3.87e-6
+R_T10, E_F_T10 = 3.87e-6, 3212.1  # the spec's sphere (d = 7.74 um) and its E_f [J/kg]
+
+
+def _pressed_sphere(cfg, speed=0.0):
+    """The T10 sphere between the plates (touching both), its fracture energy E_F_T10."""
     sim = Simulation(cfg, capacity=200)
-    sim.add_particles([[20e-6, 20e-6, r]], [r], ["AM"])
-    sim.set_top_plate(z=2 * r, velocity=-0.2)
+    sim.add_particles([[20e-6, 20e-6, R_T10]], [R_T10], ["AM"])
+    sim.set_top_plate(z=2 * R_T10, velocity=-speed)
     sim.prime()
-    e_f = 3212.1
-    sim.pool.fracture_energy[0] = e_f
-    events = []
-    while not events and sim.step_count < 40_000:
-        sim.run(50)
-        events = sim.take_breakage()
-    assert events, "the particle never broke"
-    ev = events[0]
+    sim.pool.fracture_energy[0] = E_F_T10
+    return sim
+
+
+def _pressed_energy(cfg, force):
+    """Specific stressing energy [J/kg] of the pressed sphere on the EEPA loading branch of
+    both plate contacts at the contact force ``force`` [N] (adhesion-free plates):
+    sum over the plates of e_p k1_p^(-2/3) f^(5/3) / 2.5, over the mass."""
     am = cfg.materials["AM"]
-    mass = 4740.0 * 4 / 3 * math.pi * r**3
+    mass = am.density * 4 / 3 * math.pi * R_T10**3
     terms = 0.0
-    for plate, share in ((cfg.plates.top, 0.5606), (cfg.plates.bottom, 0.2974)):
-        k1 = 4 / 3 * reduced_modulus(am, plate) * math.sqrt(r)
+    for plate in (cfg.plates.top, cfg.plates.bottom):
+        k1 = 4 / 3 * reduced_modulus(am, plate) * math.sqrt(R_T10)
         share = 1 / (1 + (am.youngs_modulus / (1 - am.poisson_ratio**2))
                      / (plate.youngs_modulus / (1 - plate.poisson_ratio**2)))
         terms += share * k1 ** (-1 / 1.5)
-    f_b = (mass * e_f * 2.5 / terms) ** (1.5 / 2.5)
+    return terms * force ** (2.5 / 1.5) / (2.5 * mass)
+
+
+def _breaking_force(cfg, e_f=E_F_T10):
+    """The contact force [N] at which the pressed sphere's energy reaches ``e_f``."""
+    return (e_f / _pressed_energy(cfg, 1.0)) ** (1.5 / 2.5)
+
+
+def _run_until_broken(sim, max_steps, chunk=50):
+    events = []
+    while not events and sim.step_count < max_steps:
+        sim.run(chunk)
+        events = sim.take_breakage()
+    return events
+
+
+def test_t10_single_particle_breaks_at_the_analytic_force():
+    cfg = _cfg()
+    e_f = E_F_T10
+    sim = _pressed_sphere(cfg, speed=0.2)
+    events = _run_until_broken(sim, 40_000)
+    assert events, "the particle never broke"
+    ev = events[0]
+    f_b = _breaking_force(cfg)
     assert f_b == pytest.approx(0.03499, rel=2e-3)  # spec section 8
     # the peak load is the sum over both plate contacts: twice the force through the particle
     assert ev["peak"][0] / 2 == pytest.approx(f_b, rel=0.01)
@@ -134,6 +159,103 @@ def test_t10_single_particle_breaks_at_the_analytic_force():
     assert ev["e50"][0] == pytest.approx(3212.1, rel=2e-4)  # spec 5.3 table, d = 7.74 um
     assert ev["parent_id"][0] == 0 and ev["nfrag"][0] >= 2
     sim.destroy()
+
+
+# ---------------------------------------------------------------- event end rules
+def _jittered_descent(sim, speed, period_steps, until):
+    """Top plate history: down at ``speed`` on average, with a sin^2 wobble whose peak
+    velocity is twice the mean, so that the plate backs off during a third of every
+    period (0.22 x speed x period of travel)."""
+    period = period_steps * sim.dt
+    t = np.arange(0.0, until * sim.dt, period / 32)
+    wobble = 2 * speed * period / math.pi
+    z0 = sim.z_top
+    sim.set_top_plate_history(t, z0 - speed * t - wobble * np.sin(math.pi * t / period) ** 2)
+
+
+def test_release_rule_keeps_the_event_of_a_jittered_load_open():
+    """A plate that backs off by 3 % of the contact overlap for 200 steps in every period
+    (step-to-step unloading, as in a jostling bed): the ``release`` rule keeps one event
+    open while the plates press on the sphere, and it breaks at the analytic force of a
+    monotonic load, as in T10; the spec's ``quiet`` rule ends an event at each back-off,
+    restarts the stressing energy from zero and only damages the sphere."""
+    speed, period = 0.2, 660  # back-off 0.22 x 0.2 m/s x 660 dt = 8 nm (3 % of delta_b)
+    f_b = _breaking_force(_cfg())
+    steps = {}
+    for rule in ("release", "quiet"):
+        cfg = _cfg(event_end_rule=rule)
+        sim = _pressed_sphere(cfg)
+        _jittered_descent(sim, speed, period, until=40_000)
+        events = _run_until_broken(sim, 16_000 if rule == "quiet" else 40_000)
+        if rule == "release":
+            assert events, "the sphere never broke"
+            assert events[0]["peak"][0] / 2 == pytest.approx(f_b, rel=0.01)
+            # only the first back-offs, before the overlap exceeds 8 nm, let go of the
+            # sphere: events of nearly no energy, damage below 1e-4
+            e_f = events[0]["fracture"][0]
+            assert e_f == pytest.approx(E_F_T10, rel=1e-4) and events[0]["energy"][0] >= e_f
+            steps[rule] = sim.step_count
+        else:  # by 1.3 x the steps the release rule needed: no breakage, only damage
+            assert sim.step_count > 1.3 * steps["release"]
+            assert not events
+            assert int(sim.pool.damage_events[0]) >= 5
+            assert float(sim.pool.fracture_energy[0]) < E_F_T10
+            load = float(sim.pool.normal_force_sum[0]) / 2
+            assert load > f_b  # loaded past the monotonic breaking force, unbroken
+        sim.destroy()
+
+
+def _load_back_off_and_lift(rule):
+    """The pressed sphere loaded to 70 % of its breaking force at 0.05 m/s, the plate
+    backed off 3 % of the travel and held (load about 0.78 of the peak), then lifted clear.
+    Returns (sim, its breaking force, the step count of the end of the hold)."""
+    cfg = _cfg(event_end_rule=rule)
+    f_b = _breaking_force(cfg)
+    sim = _pressed_sphere(cfg)
+    am = cfg.materials["AM"]
+    travel = 0.0  # plate travel to the target load: both plate overlaps
+    for plate in (cfg.plates.top, cfg.plates.bottom):
+        k1 = 4 / 3 * reduced_modulus(am, plate) * math.sqrt(R_T10)
+        travel += (0.7 * f_b / k1) ** (1 / 1.5)
+    t_load = travel / 0.05
+    z0 = sim.z_top
+    times = [0.0, t_load, 1.01 * t_load, 1.5 * t_load, 1.6 * t_load]
+    z = [z0, z0 - travel, z0 - 0.97 * travel, z0 - 0.97 * travel, z0 + 1e-6]
+    sim.set_top_plate_history(times, z)
+    return sim, f_b, int(1.45 * t_load / sim.dt), int(2.5 * t_load / sim.dt)
+
+
+def test_release_rule_ends_the_event_when_the_plates_let_go_with_the_analytic_damage():
+    """Load, back off and hold (:func:`_load_back_off_and_lift`): under the ``release``
+    rule the event stays open through the hold (the plates press, no contact loads) and
+    nothing is damaged; once the lifted plate lets go of the sphere (the plastic overlap
+    of the bottom plate may stay, without force) the event ends and
+    E'_f = E_f (1 - D(x)), x = E(f_peak) / E_f (spec 5.5, with the loading-branch energy of
+    T10). The spec's ``quiet`` rule already ends the event in the hold, with the same
+    damage."""
+    for rule in ("release", "quiet"):
+        sim, f_b, n_hold, n_end = _load_back_off_and_lift(rule)
+        sim.run(n_hold)
+        peak = float(sim.pool.peak_load[0]) / 2
+        assert peak == pytest.approx(0.7 * f_b, rel=0.02)
+        load = float(sim.pool.normal_force_sum[0]) / 2
+        assert 0.5 * peak < load < 0.9 * peak and int(sim.pool.n_contacts[0]) == 2
+        x = _pressed_energy(sim.cfg, peak) / E_F_T10
+        damaged = E_F_T10 * (1 - float(bk.damage(np.array([x]), 5.549)[0]))
+        assert damaged < 0.9 * E_F_T10  # x near 0.55: about 12 % damage
+        if rule == "release":
+            assert int(sim.pool.event_open[0]) == 1 and int(sim.pool.damage_events[0]) == 0
+            assert float(sim.pool.fracture_energy[0]) == E_F_T10
+        else:
+            assert int(sim.pool.damage_events[0]) == 1
+            assert float(sim.pool.fracture_energy[0]) == pytest.approx(damaged, rel=2e-3)
+        sim.run(n_end - n_hold)
+        assert float(sim.pool.normal_force_sum[0]) < 1e-9 * peak
+        assert int(sim.pool.event_open[0]) == 0
+        assert not sim.take_breakage()
+        assert int(sim.pool.damage_events[0]) == 1
+        assert float(sim.pool.fracture_energy[0]) == pytest.approx(damaged, rel=2e-3)
+        sim.destroy()
 
 
 # ---------------------------------------------------------------- T11 sampling
@@ -368,7 +490,7 @@ def test_a_full_pool_stops_the_run_with_a_diagnostic():
 @pytest.mark.parametrize("key, value", [
     ("truncation_mode", "median"), ("alpha_percentage", 120.0), ("truncation_ratio", 0.0),
     ("min_breakable_diameter", 3e-6), ("sibling_init", "spiky"), ("shear_weight", 2.0),
-    ("damage_constant", -1.0)])
+    ("damage_constant", -1.0), ("event_end_rule", "never")])
 def test_bad_breakage_config_names_the_key(key, value):
     from calendaring.core.errors import ConfigError
 

@@ -223,7 +223,8 @@ class PairPhase:
         table.stress_i[c] = 0.0
         table.stress_j[c] = 0.0
         if ti.static(self.breakage):
-            self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c])
+            self._stress_work(pool, table, c, i, j, a, b, work, delta > table.delta_prev[c],
+                              f_hys > 0.0)
         table.delta_max[c] = dmax
         table.spring[c] = s
         table.delta_prev[c] = delta

@@ -114,6 +114,8 @@ class ParticlePhase:
         if ti.static(self.breakage):
             pool.stress_sum[i] = 0.0
             pool.loading[i] = 0
+            if ti.static(self.track_pressed):
+                pool.pressed[i] = 0
         self._plate_contact(pool, i, 0, pool.wall_delta_max_bottom, pool.wall_delta_prev_bottom,
                             pool.wall_fhys_prev_bottom, pool.wall_spring_bottom,
                             pool.wall_work_bottom, r - (x[2] - z_bottom), 0.0, dt, row)
@@ -143,6 +145,9 @@ class ParticlePhase:
                     pool.stress_sum[i] += self.plate[a, w, COL["stiffness_partition"]] * wk
                     if delta > prev_f[i]:
                         pool.loading[i] = 1
+                    if ti.static(self.track_pressed):
+                        if f_hys > 0.0:
+                            pool.pressed[i] = 1
             dmax_f[i] = dmax
             spring_f[i] = s
             prev_f[i] = delta

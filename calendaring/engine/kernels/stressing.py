@@ -17,20 +17,20 @@ class StressingWork:
 
     @ti.func
     def _stress_work(self, pool: ti.template(), table: ti.template(), c, i, j, a, b, work,
-                     loading):
+                     loading, pressed):
         """Add a contact's stressing work to each breakable side's event and E_k (spec 5.4)."""
         if self.breakable[a]:
             table.stress_i[c] = self._side_work(pool, table.event_a, table.work_a, c, i,
                                                 self.pair[a, b, COL["stiffness_partition"]],
-                                                work, loading)
+                                                work, loading, pressed)
         if self.breakable[b]:
             table.stress_j[c] = self._side_work(pool, table.event_b, table.work_b, c, j,
                                                 self.pair[b, a, COL["stiffness_partition"]],
-                                                work, loading)
+                                                work, loading, pressed)
 
     @ti.func
     def _side_work(self, pool: ti.template(), event_f: ti.template(), work_f: ti.template(), c,
-                   i, share, work, loading):
+                   i, share, work, loading, pressed):
         """One side of :meth:`_stress_work`: particle i with its share of the contact work
         (returned; the gather adds it to ``stress_sum``)."""
         ev = pool.event_id[i]
@@ -41,6 +41,9 @@ class StressingWork:
         work_f[c] = w
         if loading:
             pool.loading[i] = 1
+        if ti.static(self.track_pressed):
+            if pressed:
+                pool.pressed[i] = 1
         return share * w
 
     @ti.func
