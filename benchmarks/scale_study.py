@@ -107,11 +107,22 @@ def cmd_run(args) -> int:
         print(f"[scale] {case['name']}: sweep exit {rc} after "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
         n = archive(folder, Path(args.archive) / case["name"])
-        write_json(Path(args.archive) / "provenance.json", prov)
+        _record_invocations(Path(args.archive) / "provenance.json", prov["invocations"])
         print(f"[scale] {case['name']}: {n} runs archived", flush=True)
         if rc not in (0, 3):  # 3: some runs failed (recorded in the manifest); go on
             return rc
     return 0
+
+
+def _record_invocations(path: Path, invocations: list[dict]) -> None:
+    """Add the invocations not yet listed to the archive's provenance (studies running side
+    by side into one archive each keep theirs)."""
+    from calendaring import write_json
+
+    prov = json.loads(path.read_text()) if path.exists() else {"invocations": []}
+    seen = {json.dumps(i, sort_keys=True) for i in prov["invocations"]}
+    prov["invocations"] += [i for i in invocations if json.dumps(i, sort_keys=True) not in seen]
+    write_json(path, prov)
 
 
 # ---------------------------------------------------------------------- report

@@ -5,10 +5,10 @@ Per step, after the contact forces (spec 5.11):
 1. :meth:`BreakageKernels.events` over the breakable particles: the specific stressing
    energy ``E_k = (B + sum_c e_c W_c) / m`` (the contact sums are accumulated by the force
    kernels, :mod:`calendaring.engine.forces`), the particle's lifetime peak of the total contact
-   normal force, loading events (opened when a contact loads; closed by
-   ``breakage.event_end_rule``: ``"quiet"`` after ``breakage.event_end_steps`` steps in a
-   row without a loading contact or when the particle has no contact, ``"release"`` once
-   no contact presses on it),
+   normal force, loading events (opened when a contact loads, and with
+   ``breakage.event_end_rule = "release"`` presses; closed by the rule: ``"quiet"`` after
+   ``breakage.event_end_steps`` steps in a row without a loading contact or when the
+   particle has no contact, ``"release"`` once no contact presses on it),
    damage at the end of an event (Eq. 36 solved by bisection, spec 5.5) and the breakage
    test ``E_k >= E'_f`` (5.6). Breaking parents go to a list; it returns their number.
 2. Only when that number is > 0, :meth:`BreakageKernels.replace` (one kernel): progeny sizes
@@ -460,10 +460,14 @@ class BreakageKernels:
                     pool.stress_bank[i] = 0.0
                     pool.wall_work_bottom[i] = 0.0
                     pool.wall_work_top[i] = 0.0
-            elif pool.loading[i]:
-                pool.event_open[i] = 1
-                pool.event_quiet[i] = 0
-                pool.event_max[i] = ek
+            else:
+                opens = pool.loading[i]
+                if ti.static(not self.end_when_quiet):  # a contact loads and presses
+                    opens = opens & pool.pressed[i]
+                if opens:
+                    pool.event_open[i] = 1
+                    pool.event_quiet[i] = 0
+                    pool.event_max[i] = ek
 
     @ti.func
     def _neighbours(self, pool: ti.template(), grid: ti.template(), k, p):
