@@ -61,9 +61,7 @@ def pressure_at(depth: np.ndarray, value: np.ndarray, um: float, half_width: flo
 
 def cmd_one(args) -> int:
     """One run (a subprocess of ``run``): prints its JSON line."""
-    from calendaring import read_run
-    from calendaring.core.config import load_preset, with_overrides
-    from calendaring.process.run import CalenderRun
+    from calendaring import CalenderRun, load_preset, read_run, with_overrides
 
     cfg = with_overrides(load_preset(args.preset), {
         "domain.cell_x": args.cell * 1e-6, "domain.cell_y": args.cell * 1e-6,
