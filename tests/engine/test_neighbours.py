@@ -75,6 +75,38 @@ def test_pair_capacity_overflow_grows_table_and_keeps_every_pair():
         sim.destroy()
 
 
+def test_owner_with_more_candidates_than_the_scratch_is_searched_again():
+    """The rebuild's counting pass keeps up to CANDIDATE_SCRATCH partners per owner for the
+    filling pass; an owner with more (a large sphere in slot 0 ringed by small ones) is
+    searched again. Both paths give the brute-force pairs, once each."""
+    from calendaring.engine.contacts import CANDIDATE_SCRATCH
+
+    cfg = load_config_dict({"domain": {"cell_x": 40e-6, "cell_y": 40e-6, "height": 40e-6},
+                            "numerics": {"skin": 0.5e-6}})
+    sim = Simulation(cfg, capacity=200)
+    try:
+        rng = np.random.default_rng(4)
+        centre, big, small = np.array([20e-6, 20e-6, 20e-6]), 8e-6, 1e-6
+        u = rng.normal(size=(3 * CANDIDATE_SCRATCH, 3))
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        shell = centre + (big + small + 0.2e-6) * u  # within the skin of the big sphere
+        keep = [0]
+        for k in range(1, len(shell)):  # small spheres apart from each other
+            if np.min(np.linalg.norm(shell[keep] - shell[k], axis=1)) > 2.2 * small:
+                keep.append(k)
+        pos = np.vstack([centre, shell[keep]])
+        rad = np.array([big] + [small] * len(keep))
+        sim.add_particles(pos, rad, np.zeros(len(rad), int))  # input order: big in slot 0
+        sim.rebuild()
+        h = sim.table.history_arrays()
+        assert int(np.sum(h["owner"] == 0)) == len(keep) > CANDIDATE_SCRATCH
+        assert len(h["owner"]) == len(_pairs(sim))  # no duplicates
+        assert _pairs(sim) == brute_force_pairs(pos, rad, 40e-6, 40e-6, 0.5e-6)
+        assert np.any((h["owner"] > 0))  # the copied path too: small-small pairs
+    finally:
+        sim.destroy()
+
+
 def test_cell_smaller_than_two_cutoffs_is_rejected():
     from calendaring.core.errors import ConfigError
     cfg = load_config_dict({"domain": {"cell_x": 12e-6, "cell_y": 40e-6, "height": 40e-6}})
