@@ -102,7 +102,7 @@ def test_owner_with_more_candidates_than_the_scratch_is_searched_again():
         assert int(np.sum(h["owner"] == 0)) == len(keep) > CANDIDATE_SCRATCH
         assert len(h["owner"]) == len(_pairs(sim))  # no duplicates
         assert _pairs(sim) == brute_force_pairs(pos, rad, 40e-6, 40e-6, 0.5e-6)
-        assert np.any((h["owner"] > 0))  # the copied path too: small-small pairs
+        assert np.any(h["owner"] > 0)  # the copied path too: small-small pairs
     finally:
         sim.destroy()
 
