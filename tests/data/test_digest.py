@@ -120,3 +120,32 @@ def test_the_sweep_counts_a_complete_digest_as_a_finished_run(sweep_folder):
     assert not finished(sweep_folder, rel) and not digest_ok(dg)[0]
     with pytest.raises(RunFileError):
         read_digest(dg)
+
+
+def test_sweep_keep_round_trip_resumes_a_sweep_on_a_fresh_machine(sweep_folder, tmp_path):
+    """scripts/sweep-keep.sh keeps manifest and digests (no run files); a restore into an
+    empty folder gives a sweep folder whose runs count as finished."""
+    import subprocess
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "scripts" / "sweep-keep.sh"
+    from calendaring.data.sweep import read_manifest, write_manifest
+
+    write_manifest(sweep_folder, {})
+    (sweep_folder / "digests" / "half.h5.tmp-x").write_bytes(b"partial")
+    keep, fresh = tmp_path / "keep", tmp_path / "fresh"
+    subprocess.run(["bash", str(script), str(sweep_folder), str(keep)], check=True)
+    assert not (keep / "runs").exists() and not list(keep.rglob("*.tmp*"))
+    assert sorted(p.name for p in (keep / "digests").iterdir()) == sorted(
+        p.name for p in (sweep_folder / "digests").glob("*.h5"))
+    subprocess.run(["bash", str(script), "--restore", str(keep), str(fresh)], check=True)
+    for path in (sweep_folder / "runs").glob("*.h5"):
+        assert finished(fresh, f"runs/{path.name}")
+    assert read_manifest(fresh) == {} and len(build_dataset(fresh, progress=False)) == len(D0)
+    # a restore never replaces what the sweep folder has
+    (fresh / "manifest.json").write_text('{"newer": 1}')
+    subprocess.run(["bash", str(script), "--restore", str(keep), str(fresh)], check=True)
+    assert "newer" in (fresh / "manifest.json").read_text()
+    bad = subprocess.run(["bash", str(script), str(tmp_path / "nothing"), str(keep)],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "manifest.json not found" in bad.stderr

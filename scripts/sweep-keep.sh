@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Keep a long sweep's progress in the repository, so that it resumes on a fresh machine.
+# A sweep folder's manifest.json, designs/ and digests/ (what `calendaring dataset` needs of
+# each finished run, a few tens of kB a run; no run files, no packings) are copied to KEEP;
+# with --restore they are copied back into a sweep folder, which `calendaring sweep` then
+# resumes: a run with a complete digest counts as finished (calendaring/data/sweep.py).
+#   bash scripts/sweep-keep.sh RUNS KEEP              # e.g. /work/sweep-rve data/sweeps/rve
+#   bash scripts/sweep-keep.sh --restore KEEP RUNS    # on a fresh machine, before the sweep
+# Every file is written to a temporary name and renamed; files already in the destination
+# are replaced only by newer ones, and a restore never replaces a file of the sweep folder.
+set -euo pipefail
+restore=0
+if [ "${1:-}" = "--restore" ]; then restore=1; shift; fi
+if [ $# -ne 2 ]; then
+    echo "usage: sweep-keep.sh RUNS KEEP | sweep-keep.sh --restore KEEP RUNS" >&2
+    exit 2
+fi
+src=$1 dst=$2
+if [ ! -f "$src/manifest.json" ]; then
+    echo "sweep-keep: $src/manifest.json not found (not a sweep folder or keep folder)" >&2
+    exit 2
+fi
+copied=0
+copy() {  # copy() REL: src/REL -> dst/REL through a temporary name
+    local rel=$1 to="$dst/$1"
+    if [ -e "$to" ]; then
+        if [ "$restore" = 1 ] || [ ! "$src/$rel" -nt "$to" ]; then return 0; fi
+    fi
+    mkdir -p "$(dirname "$to")"
+    cp -p "$src/$rel" "$to.tmp-keep"
+    mv -f "$to.tmp-keep" "$to"
+    copied=$((copied + 1))
+}
+copy manifest.json
+for dir in designs digests; do
+    [ -d "$src/$dir" ] || continue
+    while IFS= read -r -d '' f; do
+        case "$f" in *.tmp*) continue ;; esac
+        copy "${f#"$src"/}"
+    done < <(find "$src/$dir" -type f -print0)
+done
+n=$(find "$dst/digests" -name '*.h5' 2>/dev/null | wc -l)
+echo "sweep-keep: $copied files copied to $dst ($n digests there)"
