@@ -73,10 +73,20 @@ def _parser() -> argparse.ArgumentParser:
     m = sub.add_parser("microstructure", help="porosity, tortuosity and D_eff of snapshots")
     m.add_argument("run_file", help="run file (RUN.h5)")
     m.add_argument("--snapshots", help="comma-separated snapshot indices (default: all)")
+    m.add_argument("--resolution", default="converge", choices=("converge", "two-point"),
+                   help="converge: partial-volume voxels refined until tau changes by less "
+                   "than --refine-tol between levels (default); two-point: one resolution, "
+                   "a coarser one and the linear extrapolation")
+    m.add_argument("--refine-tol", type=float, default=0.02,
+                   help="relative tau change that ends the refinement")
+    m.add_argument("--max-voxels", type=float, default=40e6,
+                   help="largest voxel count of a refinement level")
+    m.add_argument("--max-levels", type=int, default=5, help="most refinement levels")
     m.add_argument("--voxels-per-diameter", type=float, help="voxels across the smallest "
-                   "particle diameter (default: the module's)")
-    m.add_argument("--supersample", type=int, default=1, help="partial-volume sub-voxels per "
-                   "axis (1: binary voxels)")
+                   "particle diameter: the first level (default 3) or the two-point "
+                   "resolution (default 4)")
+    m.add_argument("--supersample", type=int, help="partial-volume sub-voxels per axis "
+                   "(default 3 for converge, 1 = binary for two-point)")
     m.add_argument("--cb-phase", action="store_true", help="carbon black as its own "
                    "(conducting) phase")
     m.add_argument("--device", default="cpu", help="torch device for TauFactor")
@@ -206,8 +216,14 @@ def cmd_microstructure(args) -> int:
     snaps = _parse_snapshots(args.snapshots, len(rec.snapshots))
     if not rec.snapshots:
         raise ConfigError("RUN", args.run_file, "a run file with snapshots")
-    if args.supersample < 1:
+    if args.supersample is not None and args.supersample < 1:
         raise ConfigError("--supersample", args.supersample, "an integer >= 1")
+    if not 0 < args.refine_tol < 1:
+        raise ConfigError("--refine-tol", args.refine_tol, "in (0, 1)")
+    if not (args.max_voxels >= 1 and args.max_voxels < float("inf")):
+        raise ConfigError("--max-voxels", args.max_voxels, ">= 1 (finite)")
+    if args.max_levels < 2:
+        raise ConfigError("--max-levels", args.max_levels, "an integer >= 2")
     if args.voxels_per_diameter is not None and args.voxels_per_diameter <= 0:
         raise ConfigError("--voxels-per-diameter", args.voxels_per_diameter, "> 0")
     if not 0 < args.tol < 1:
@@ -220,7 +236,9 @@ def cmd_microstructure(args) -> int:
     res = analyse_run(rec.path, snapshots=snaps, supersample=args.supersample,
                       cb_phase=args.cb_phase, device=args.device, tol=args.tol,
                       second_resolution=not args.no_second_resolution,
-                      progress=not args.quiet, **kw)
+                      progress=not args.quiet, resolution=args.resolution,
+                      refine_tol=args.refine_tol, max_voxels=args.max_voxels,
+                      max_levels=args.max_levels, **kw)
     report = {"run_file": str(rec.path), "result": res.to_json(), "figures": [],
               "render_errors": []}
     out.mkdir(parents=True, exist_ok=True)

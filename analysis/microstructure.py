@@ -65,6 +65,16 @@ SECOND_RESOLUTION_FACTOR = 0.75
 #: Relative diffusivity of the carbon-binder phase when it conducts as its own phase: a
 #: Bruggeman estimate eps^1.5 for a nano-porous CBD of internal porosity eps = 0.5 [A].
 DEFAULT_CB_DIFFUSIVITY = 0.5**1.5
+#: Converged microstructure (:func:`converge_snapshot`, the default of :func:`analyse_run`):
+#: partial-volume voxels from REFINE_SUPERSAMPLE^3 sub-voxels at REFINE_START,
+#: x REFINE_RATIO, ... voxels per smallest diameter, until tau changes by less than
+#: REFINE_TOL between levels, within REFINE_MAX_VOXELS voxels a level.
+REFINE_SUPERSAMPLE = 3
+REFINE_START = 3.0
+REFINE_RATIO = 1.5
+REFINE_TOL = 0.02
+REFINE_MAX_LEVELS = 5
+REFINE_MAX_VOXELS = 40e6
 #: TauFactor's solver stops when the flux through every layer agrees to this fraction.
 DEFAULT_TOL = 1e-3
 DEFAULT_ITER_LIMIT = 20_000
@@ -355,6 +365,8 @@ class TransportResult:
     iterations: int
     converged: bool
     seconds: float
+    warm_start: bool = False  # started from a coarser level's potential
+    potential: np.ndarray | None = field(default=None, repr=False)  # if keep_field
 
     def to_json(self) -> dict[str, Any]:
         return {"porosity": self.porosity, "tortuosity": self.tortuosity,
@@ -363,12 +375,30 @@ class TransportResult:
                 "percolating_fraction": self.percolating_fraction,
                 "conducting_fraction": self.conducting_fraction, "solver": self.solver,
                 "iterations": self.iterations, "converged": self.converged,
-                "solve_seconds": self.seconds}
+                "solve_seconds": self.seconds, "warm_start": self.warm_start}
+
+
+def prolong_field(coarse: np.ndarray, conducting: np.ndarray,
+                  shape: tuple[int, int, int]) -> np.ndarray:
+    """A coarse level's potential (z, y, x) on a finer grid of ``shape``: the value of the
+    coarse voxel that holds each fine voxel's centre (nearest), where the coarse voxel is
+    solid its layer's mean potential over the conducting voxels. An initial guess for the
+    fine solve: the smooth, slowly converging part of the solution is already there, and
+    the SOR sweeps remove the local errors in a few hundred iterations."""
+    f = np.asarray(coarse, dtype=np.float64)
+    m = np.asarray(conducting, dtype=bool)
+    layer = (f * m).sum(axis=(1, 2)) / np.maximum(m.sum(axis=(1, 2)), 1)
+    f = np.where(m, f, layer[:, None, None])
+    idx = [np.minimum(((np.arange(n) + 0.5) * c / n).astype(np.int64), c - 1)
+           for n, c in zip(shape, f.shape, strict=True)]
+    return f[np.ix_(*idx)].astype(np.float32)
 
 
 def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAULT_TOL,
                      cb_diffusivity: float | None = None,
-                     iter_limit: int = DEFAULT_ITER_LIMIT) -> TransportResult:
+                     iter_limit: int = DEFAULT_ITER_LIMIT,
+                     initial_field: np.ndarray | None = None,
+                     keep_field: bool = False) -> TransportResult:
     """Tortuosity factor and relative D_eff through axis 0 of a voxel image (TauFactor).
 
     Args:
@@ -381,6 +411,10 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
         cb_diffusivity: relative diffusivity of the CB phase (> 0); None for a two-phase
             image.
         iter_limit: SOR sweeps before giving up (the result is then marked not converged).
+        initial_field: a potential of the image's shape to start from (a coarser level's,
+            :func:`prolong_field`) instead of TauFactor's linear profile. Only the start
+            changes: the solve stops on the same criterion.
+        keep_field: return the solved potential ((nz, ny, nx), float32) in ``potential``.
 
     Returns:
         :class:`TransportResult`. A conducting phase without a face-connected path between
@@ -462,11 +496,22 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
             solver = taufactor.PeriodicSolver(labels, device=device)
         else:
             solver = _periodic_multiphase_class()(labels, cond=cond, device=device)
+        if initial_field is not None:
+            start = np.asarray(initial_field, dtype=np.float32)
+            if start.shape != img.shape:
+                raise ConfigError("initial_field.shape", start.shape, f"{img.shape}")
+            start = np.tile(start, reps) * (labels > 0)
+            solver.field[0, 1:-1, 1:-1, 1:-1] = torch.from_numpy(start).to(
+                solver.field.device, solver.field.dtype)
         solver.solve(iter_limit=iter_limit, verbose=False, conv_crit=tol)
     seconds = time.perf_counter() - t0
     tau = float(np.asarray(solver.tau).reshape(-1)[0])
     d_eff = float(np.asarray(solver.D_eff if cond is not None else solver.D_rel).reshape(-1)[0])
     iterations, converged = int(solver.iter), bool(solver.converged)
+    potential = None
+    if keep_field:
+        nz, ny, nx = img.shape
+        potential = solver.field[0, 1:-1, 1:-1, 1:-1].cpu().numpy()[:nz, :ny, :nx].copy()
     del solver
     if device != "cpu" and torch.cuda.is_available():
         torch.cuda.empty_cache()
@@ -479,7 +524,8 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
     return TransportResult(
         porosity=porosity, tortuosity=tau, D_eff=d_eff, D_eff_check=d_mean / tau, reason=None,
         percolating_fraction=frac, conducting_fraction=cfrac, solver=solver_name,
-        iterations=iterations, converged=converged, seconds=seconds)
+        iterations=iterations, converged=converged, seconds=seconds,
+        warm_start=initial_field is not None, potential=potential)
 
 
 # ---------------------------------------------------------------------------- snapshots
@@ -554,8 +600,10 @@ class SnapshotMicrostructure:
     n_particles: int
     smallest_diameter: float  # in this snapshot [m]
     particle_porosity: float  # 1 - sphere volume / (cell area x gap) [-]
-    primary: ResolutionResult
-    second: ResolutionResult | None = None
+    primary: ResolutionResult  # the finest level of a refinement
+    second: ResolutionResult | None = None  # the level before it
+    refinement: dict[str, Any] | None = None  # the refinement sequence (converge_snapshot)
+    porosities: dict[str, Any] | None = None  # analysis.porosity.porosity_budget
 
     def extrapolated(self) -> dict[str, Any] | None:
         """Values extrapolated to zero voxel size from the two resolutions.
@@ -602,6 +650,8 @@ class SnapshotMicrostructure:
         out.update(self.primary.to_json())
         out["second_resolution"] = None if self.second is None else self.second.to_json()
         out["extrapolated"] = self.extrapolated()
+        out["refinement"] = self.refinement
+        out["porosities"] = self.porosities
         return out
 
 
@@ -625,6 +675,173 @@ def _resolution(snapshot, cell_x, cell_y, voxel_size, d_ref, supersample, cb_pha
                             voxels_per_diameter=d_ref / voxel_size, shape=grid["shape"],
                             supersample=supersample, voxel_porosity=porosity, cb_fraction=cb,
                             transport=tr, voxelise_seconds=tv)
+
+
+def _porosities(snapshot, cell_x, cell_y, solid_thickness, voxel_porosity):
+    from analysis.porosity import porosity_budget
+
+    return porosity_budget(snapshot.position, snapshot.radius, snapshot.material, cell_x,
+                           cell_y, snapshot.z_bottom, snapshot.z_top,
+                           solid_thickness=solid_thickness, voxel_porosity=voxel_porosity)
+
+
+def refinement_levels(cell_x: float, d_ref: float, start: float = REFINE_START,
+                      ratio: float = REFINE_RATIO, max_levels: int = REFINE_MAX_LEVELS
+                      ) -> list[float]:
+    """Voxel edges [m] of a refinement sequence: ``start``, ``start * ratio``, ... voxels
+    per ``d_ref``, each with an even lateral voxel count (:func:`voxel_size_for`) and
+    strictly finer than the one before."""
+    if not (np.isfinite(ratio) and ratio > 1):
+        raise ConfigError("refine_ratio", ratio, "> 1")
+    if not (isinstance(max_levels, (int, np.integer)) and max_levels >= 2):
+        raise ConfigError("max_levels", max_levels, "an integer >= 2")
+    out = []
+    for k in range(int(max_levels)):
+        h = voxel_size_for(cell_x, d_ref, start * ratio**k)
+        if out and h >= out[-1]:
+            h = cell_x / (round(cell_x / out[-1]) + 2)
+        out.append(h)
+    return out
+
+
+def _richardson(taus: list[float], hs: list[float]) -> dict[str, Any]:
+    """Observed order and the extrapolated tau from the last three levels (a cross-check):
+    tau(h) = tau_0 + C h^p."""
+    out = {"observed_order": None, "tortuosity_richardson": None}
+    if len(taus) < 3 or any(t is None for t in taus[-3:]):
+        return out
+    t1, t2, t3 = taus[-3:]
+    h1, h2, h3 = hs[-3:]
+    a, b = t1 - t2, t2 - t3
+    if a == 0 or b == 0 or a * b < 0:  # not monotone: no asymptotic order to read
+        return out
+    r = (h1 / h2 + h2 / h3) / 2.0  # the level ratio (nearly constant)
+    order = float(np.log(a / b) / np.log(r))
+    if not np.isfinite(order) or order <= 0:
+        return out
+    out["observed_order"] = order
+    out["tortuosity_richardson"] = float(t3 - b / (r**order - 1.0))
+    return out
+
+
+def converge_snapshot(snapshot, cell_x: float, cell_y: float, *,
+                      reference_diameter: float = 2.0e-6, start: float = REFINE_START,
+                      ratio: float = REFINE_RATIO, refine_tol: float = REFINE_TOL,
+                      max_levels: int = REFINE_MAX_LEVELS,
+                      max_voxels: float = REFINE_MAX_VOXELS,
+                      supersample: int = REFINE_SUPERSAMPLE, cb_phase: bool = False,
+                      cb_diffusivity: float = DEFAULT_CB_DIFFUSIVITY, device: str = "cpu",
+                      tol: float = DEFAULT_TOL, warm_start: bool = True,
+                      solid_thickness: float | None = None,
+                      progress=None) -> SnapshotMicrostructure:
+    """Resolution-converged porosity, tortuosity and D_eff of one snapshot.
+
+    Partial-volume voxels (``supersample ** 3`` sub-voxel tests each; binary labels with
+    ``cb_phase``) at ``start``, ``start * ratio``, ... voxels per ``reference_diameter``.
+    Each level is solved by TauFactor, from the previous level's potential
+    (``warm_start``), and the sequence stops at the first level whose tau differs from the
+    previous one by less than ``refine_tol`` (relative): that level's values are the
+    answer. It also stops, marked not converged with the reason, when the next level would
+    exceed ``max_voxels`` or after ``max_levels``. Reported in ``refinement``: every level
+    (voxel size, voxels per diameter, shape, porosity, tau, D_eff, iterations, seconds),
+    the last relative change and two cross-checks: the first-order extrapolation of the
+    last two levels (``extrapolated``, as :func:`analyse_snapshot`) and, from three
+    levels, the observed order and the Richardson extrapolation of tau.
+
+    ``progress``: optional callable(str) told about each level.
+    """
+    if not (0 < refine_tol < 1):
+        raise ConfigError("refine_tol", refine_tol, "in (0, 1)")
+    if not (np.isfinite(max_voxels) and max_voxels >= 1):
+        raise ConfigError("max_voxels", max_voxels, ">= 1")
+    if not (np.isfinite(start) and start > 0):
+        raise ConfigError("start", start, "> 0 voxels per diameter")
+    if cb_phase:
+        supersample = 1
+    hs = refinement_levels(cell_x, reference_diameter, start, ratio, max_levels)
+    levels: list[ResolutionResult] = []
+    rows, taus = [], []
+    converged, reason, change = False, None, None
+    prev_field, prev_conducting = None, None
+    for k, h in enumerate(hs):
+        grid = voxel_grid(cell_x, cell_y, snapshot.z_bottom, snapshot.z_top, h)
+        n_vox = int(np.prod(grid["shape"]))
+        if n_vox > max_voxels:
+            reason = (f"the next level ({d_ref_text(reference_diameter, h)}, {n_vox:,} voxels) "
+                      f"exceeds max_voxels = {max_voxels:,.0f}")
+            break
+        if progress is not None:
+            progress(f"level {k}: {reference_diameter / h:.2f} vox/d, {n_vox:,} voxels")
+        t0 = time.perf_counter()
+        img = voxelise(snapshot.position, snapshot.radius, snapshot.material, cell_x, cell_y,
+                       snapshot.z_bottom, snapshot.z_top, h, supersample=supersample,
+                       phases="am_cb" if cb_phase else "solid")
+        tv = time.perf_counter() - t0
+        conducting = (img != 1) if cb_phase else (img > 0)
+        init = None
+        if warm_start and prev_field is not None:
+            init = prolong_field(prev_field, prev_conducting, img.shape)
+        if cb_phase:
+            porosity, cb = float(np.mean(img == 0)), float(np.mean(img == 2))
+            tr = solve_tortuosity(img, device=device, tol=tol, cb_diffusivity=cb_diffusivity,
+                                  initial_field=init, keep_field=warm_start)
+        else:
+            porosity, cb = float(img.mean(dtype=np.float64)), None
+            tr = solve_tortuosity(img, device=device, tol=tol, initial_field=init,
+                                  keep_field=warm_start)
+        del img, init
+        prev_field, prev_conducting = tr.potential, conducting
+        tr.potential = None
+        res = ResolutionResult(voxel_size=h, voxel_edges=grid["voxel_edges_m"],
+                               voxels_per_diameter=reference_diameter / h,
+                               shape=grid["shape"], supersample=supersample,
+                               voxel_porosity=porosity, cb_fraction=cb, transport=tr,
+                               voxelise_seconds=tv)
+        levels.append(res)
+        taus.append(tr.tortuosity)
+        rows.append({"voxel_size_m": h, "voxels_per_diameter": reference_diameter / h,
+                     "shape_zyx": list(grid["shape"]), "voxels": n_vox,
+                     "voxel_porosity": porosity, "tortuosity": tr.tortuosity,
+                     "D_eff": tr.D_eff, "iterations": tr.iterations,
+                     "solver_converged": tr.converged, "warm_start": tr.warm_start,
+                     "solve_seconds": tr.seconds, "voxelise_seconds": tv})
+        if len(taus) >= 2 and taus[-1] is not None and taus[-2] is not None:
+            change = abs(taus[-1] - taus[-2]) / taus[-1]
+            rows[-1]["tortuosity_rel_change"] = change
+            if change < refine_tol:
+                converged = True
+                break
+    if not levels:
+        raise ConfigError("max_voxels", max_voxels, f"at least the first level's voxels: {reason}")
+    if not converged and reason is None:
+        if taus[-1] is None:
+            reason = "the pore phase does not percolate at the finest level"
+        else:
+            last = "-" if change is None else f"{change:.3g}"
+            reason = f"max_levels = {max_levels} reached (last relative change {last})"
+    refinement = {"method": f"partial-volume voxels ({supersample}^3 sub-voxels), levels x"
+                            f"{ratio:g} from {start:g} voxels per diameter, stop when tau "
+                            f"changes by < {refine_tol:g}",
+                  "converged": converged, "reason": None if converged else reason,
+                  "refine_tol": refine_tol, "tortuosity_rel_change": change,
+                  "levels": rows, "warm_start": bool(warm_start),
+                  "seconds": float(sum(r["solve_seconds"] + r["voxelise_seconds"]
+                                       for r in rows)),
+                  **_richardson(taus, [r["voxel_size_m"] for r in rows])}
+    primary = levels[-1]
+    por = _porosities(snapshot, cell_x, cell_y, solid_thickness, primary.voxel_porosity)
+    return SnapshotMicrostructure(
+        index=int(snapshot.index), label=str(snapshot.label), depth=float(snapshot.depth),
+        z_bottom=float(snapshot.z_bottom), z_top=float(snapshot.z_top),
+        n_particles=len(snapshot.radius),
+        smallest_diameter=float(2 * snapshot.radius.min()) if len(snapshot.radius) else 0.0,
+        particle_porosity=float(snapshot.porosity(cell_x, cell_y)), primary=primary,
+        second=levels[-2] if len(levels) > 1 else None, refinement=refinement,
+        porosities=por)
+
+
+def d_ref_text(d_ref: float, h: float) -> str:
+    return f"{d_ref / h:.2f} voxels per diameter, {h * 1e6:.3f} um"
 
 
 def analyse_snapshot(snapshot, cell_x: float, cell_y: float, *,
@@ -734,34 +951,57 @@ def _select(record, snapshots) -> list:
     return chosen
 
 
-def analyse_run(run_file, snapshots=None, voxels_per_diameter: float =
-                DEFAULT_VOXELS_PER_DIAMETER, supersample: int = 1, cb_phase: bool = False,
+RESOLUTIONS = ("converge", "two-point")
+
+
+def analyse_run(run_file, snapshots=None, voxels_per_diameter: float | None = None,
+                supersample: int | None = None, cb_phase: bool = False,
                 device: str = "cpu", tol: float = DEFAULT_TOL, second_resolution: bool = True,
                 progress: bool = True, cb_diffusivity: float = DEFAULT_CB_DIFFUSIVITY,
-                label: str | None = None) -> MicrostructureResult:
+                label: str | None = None, resolution: str = "converge",
+                refine_tol: float = REFINE_TOL, max_voxels: float = REFINE_MAX_VOXELS,
+                max_levels: int = REFINE_MAX_LEVELS) -> MicrostructureResult:
     """Microstructure of a run's snapshots (Fig. 13 b-d), read through ``read_run``.
 
     Args:
         run_file: path of a run file.
         snapshots: None (all), or snapshot indices (int) and/or depths [m] (float, nearest).
         voxels_per_diameter: voxels across the run's smallest possible diameter
-            (:func:`reference_diameter`); the same voxel size for every snapshot.
-        supersample, cb_phase, device, tol, second_resolution, cb_diffusivity: as in
+            (:func:`reference_diameter`): the first level of the refinement (default
+            ``REFINE_START``), or the resolution of ``"two-point"`` (default
+            ``DEFAULT_VOXELS_PER_DIAMETER``); the same for every snapshot.
+        supersample: sub-voxels per axis (default ``REFINE_SUPERSAMPLE`` for
+            ``"converge"``, 1 for ``"two-point"``).
+        resolution: ``"converge"`` (:func:`converge_snapshot`: refine until tau changes by
+            less than ``refine_tol``, within ``max_voxels`` and ``max_levels``) or
+            ``"two-point"`` (:func:`analyse_snapshot`: one resolution and, with
+            ``second_resolution``, a coarser one and the extrapolation).
+        cb_phase, device, tol, second_resolution, cb_diffusivity: as in
             :func:`analyse_snapshot`.
-        progress: a tqdm bar on stderr (one step per snapshot and resolution).
+        progress: a tqdm bar on stderr (one step per snapshot).
         label: name of the run in plots and tables (default: the file's stem).
     """
     from tqdm import tqdm
 
+    from analysis.porosity import recipe_solid_thickness
     from calendaring import read_run
 
+    if resolution not in RESOLUTIONS:
+        raise ConfigError("resolution", resolution, f"one of {RESOLUTIONS}")
+    converge = resolution == "converge"
+    if voxels_per_diameter is None:
+        voxels_per_diameter = REFINE_START if converge else DEFAULT_VOXELS_PER_DIAMETER
+    if supersample is None:
+        supersample = 1 if (cb_phase or not converge) else REFINE_SUPERSAMPLE
     t0 = time.perf_counter()
     record = read_run(run_file)
     chosen = _select(record, snapshots)
     d_ref = reference_diameter(record.config)
+    solid = recipe_solid_thickness(record.config)
     import taufactor
 
-    settings = {"voxels_per_diameter": float(voxels_per_diameter),
+    settings = {"resolution": resolution,
+                "voxels_per_diameter": float(voxels_per_diameter),
                 "reference_diameter_m": d_ref,
                 "voxel_size_m": voxel_size_for(record.cell_x, d_ref, voxels_per_diameter),
                 "second_resolution": bool(second_resolution),
@@ -770,7 +1010,11 @@ def analyse_run(run_file, snapshots=None, voxels_per_diameter: float =
                 "cb_diffusivity": float(cb_diffusivity) if cb_phase else None,
                 "device": str(device), "tol": float(tol),
                 "taufactor_version": getattr(taufactor, "__version__", "1.2.1"),
-                "transport_axis": "z (thickness), lateral faces periodic"}
+                "transport_axis": "z (thickness), lateral faces periodic",
+                "recipe_solid_thickness_m": solid}
+    if converge:
+        settings.update({"refine_ratio": REFINE_RATIO, "refine_tol": float(refine_tol),
+                         "max_voxels": float(max_voxels), "max_levels": int(max_levels)})
     result = MicrostructureResult(run_file=str(run_file),
                                   label=label or Path(run_file).stem,
                                   breakage_model=record.breakage_model,
@@ -780,11 +1024,25 @@ def analyse_run(run_file, snapshots=None, voxels_per_diameter: float =
                disable=not progress, file=sys.stderr)
     for snap in bar:
         bar.set_postfix_str(f"depth {snap.depth * 1e6:.1f} um")
-        result.snapshots.append(analyse_snapshot(
+        if converge:
+            def say(msg, depth=snap.depth):
+                bar.set_postfix_str(f"depth {depth * 1e6:.1f} um, {msg}")
+
+            result.snapshots.append(converge_snapshot(
+                snap, record.cell_x, record.cell_y, reference_diameter=d_ref,
+                start=voxels_per_diameter, refine_tol=refine_tol, max_levels=max_levels,
+                max_voxels=max_voxels, supersample=supersample, cb_phase=cb_phase,
+                cb_diffusivity=cb_diffusivity, device=device, tol=tol,
+                solid_thickness=solid, progress=say))
+            continue
+        one = analyse_snapshot(
             snap, record.cell_x, record.cell_y, voxels_per_diameter=voxels_per_diameter,
             reference_diameter=d_ref, supersample=supersample, cb_phase=cb_phase,
             cb_diffusivity=cb_diffusivity, device=device, tol=tol,
-            second_resolution=second_resolution))
+            second_resolution=second_resolution)
+        one.porosities = _porosities(snap, record.cell_x, record.cell_y, solid,
+                                     one.primary.voxel_porosity)
+        result.snapshots.append(one)
     bar.close()
     result.wall_seconds = time.perf_counter() - t0
     return result
@@ -816,8 +1074,21 @@ def microstructure_table(results: dict[str, MicrostructureResult],
                          "D_eff_second": sec.get("D_eff"),
                          "voxel_size_second_m": sec.get("voxel_size_m"),
                          "tortuosity_extrapolated": ext.get("tortuosity"),
-                         "D_eff_extrapolated": ext.get("D_eff")})
+                         "D_eff_extrapolated": ext.get("D_eff"),
+                         "refinement": _refinement_row(j["refinement"]),
+                         "porosities": j["porosities"]})
     return rows
+
+
+def _refinement_row(ref: dict[str, Any] | None) -> dict[str, Any] | None:
+    if ref is None:
+        return None
+    return {"levels": len(ref["levels"]), "converged": ref["converged"],
+            "reason": ref["reason"], "tortuosity_rel_change": ref["tortuosity_rel_change"],
+            "voxels_per_diameter": [r["voxels_per_diameter"] for r in ref["levels"]],
+            "tortuosity_levels": [r["tortuosity"] for r in ref["levels"]],
+            "tortuosity_richardson": ref["tortuosity_richardson"],
+            "observed_order": ref["observed_order"], "seconds": ref["seconds"]}
 
 
 def format_table(rows: list[dict[str, Any]]) -> str:
@@ -829,18 +1100,36 @@ def format_table(rows: list[dict[str, Any]]) -> str:
     def g(v):
         return "-" if v is None else format(v, ".4f")
 
-    lines = ["| run | depth [um] | porosity particle / voxel [%] | tau | D_eff | "
-             "tau / D_eff (2nd res.) | tau / D_eff (extrap.) | voxel [um] |",
-             "|---|---|---|---|---|---|---|---|"]
+    def pct(v):
+        return "-" if v is None else f"{100 * v:.2f}"
+
+    lines = ["| run | depth [um] | porosity sphere sum / voxel / mass balance [%] | tau | D_eff "
+             "| tau / D_eff (previous level) | tau / D_eff (extrap.) | voxel [um] "
+             "| refinement: tau per level (vox/d) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        por = r.get("porosities") or {}
+        ref = r.get("refinement")
+        if ref is None:
+            seq = "two-point"
+        else:
+            seq = ", ".join(f"{f(t, '.3f')} ({v:.2g})" for t, v in
+                            zip(ref["tortuosity_levels"], ref["voxels_per_diameter"],
+                                strict=True))
+            change = ref["tortuosity_rel_change"]
+            seq += (f"; last change {100 * change:.1f} %" if change is not None else "")
+            seq += "" if ref["converged"] else " (not converged)"
         lines.append(
             f"| {r['run']} | {r['depth_m'] * 1e6:.1f} | {100 * r['particle_porosity']:.2f} / "
-            f"{100 * r['voxel_porosity']:.2f} | {f(r['tortuosity'], '.4f')} | "
+            f"{100 * r['voxel_porosity']:.2f} / {pct(por.get('mass_balance'))} | "
+            f"{f(r['tortuosity'], '.4f')} | "
             f"{f(r['D_eff'], '.4f')} | {g(r['tortuosity_second'])} / "
             f"{g(r['D_eff_second'])} | {g(r['tortuosity_extrapolated'])} / "
-            f"{g(r['D_eff_extrapolated'])} | {r['voxel_size_m'] * 1e6:.3f} |")
+            f"{g(r['D_eff_extrapolated'])} | {r['voxel_size_m'] * 1e6:.3f} | {seq} |")
     lines.append("n/p: the pore phase does not percolate through the thickness; -: not "
-                 "computed (no second resolution) or not percolating there.")
+                 "computed (no second resolution) or not percolating there. Sphere sum: "
+                 "overlaps counted twice; voxel: the union of the spheres between the "
+                 "plates; mass balance: the recipe's solids over the gap.")
     return "\n".join(lines)
 
 

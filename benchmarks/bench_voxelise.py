@@ -1,8 +1,11 @@
 """Voxels per second of ``analysis.microstructure.voxelise`` and the wall time of the
-microstructure analysis (porosity, TauFactor tortuosity, D_eff at two resolutions) of a
-quick run's snapshots at the default resolution.
+microstructure analysis of a run's snapshots: by default the resolution-converged one
+(partial-volume voxels refined until tau changes by < 2 %; every level's voxel count,
+iterations and seconds are recorded), or ``--resolution two-point``.
 
-    python benchmarks/bench_voxelise.py --run RUN.h5          # a quick-preset run file
+    python benchmarks/bench_voxelise.py --run RUN.h5          # a run file
+    python benchmarks/bench_voxelise.py --run RVE.h5 --analyse 1 --voxels-per-diameter 4 \
+        --repeats 3 --out benchmarks/results/bench_voxelise_rve.json   # one 100 um snapshot
     python benchmarks/bench_voxelise.py                       # random packing, no analysis
 
 Voxel throughput is timed on the run's deepest snapshot (or, without ``--run``, on a random
@@ -63,6 +66,12 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="torch threads (TauFactor)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--no-analysis", action="store_true", help="skip the microstructure timing")
+    ap.add_argument("--resolution", default="converge", choices=("converge", "two-point"),
+                    help="the microstructure analysis timed (analysis.microstructure)")
+    ap.add_argument("--analyse", type=int, nargs="+",
+                    help="snapshot indices of the analysis (default: all)")
+    ap.add_argument("--max-voxels", type=float, default=40e6,
+                    help="largest refinement level (converge)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" /
                                          "bench_voxelise.json"))
     args = ap.parse_args(argv)
@@ -108,9 +117,20 @@ def main(argv=None) -> int:
                   f"({row['sub_voxel_tests_per_second']:.3g} sub-voxel tests/s)", file=sys.stderr)
     if args.run and not args.no_analysis:
         t0, c0 = time.perf_counter(), time.process_time()
-        res = analyse_run(args.run, device=args.device, progress=True)
+        res = analyse_run(args.run, snapshots=args.analyse, device=args.device,
+                          progress=True, resolution=args.resolution,
+                          max_voxels=args.max_voxels)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         snaps = res.to_json()["snapshots"]
+
+        def detail(s):
+            if s["refinement"] is not None:
+                return {"refinement": s["refinement"], "porosities": s["porosities"]}
+            return {"second": {k: s["second_resolution"][k] for k in
+                               ("voxel_porosity", "tortuosity", "D_eff", "shape_zyx",
+                                "iterations", "solve_seconds")},
+                    "extrapolated": s["extrapolated"], "porosities": s["porosities"]}
+
         report["microstructure"] = {
             "settings": res.settings, "default_voxels_per_diameter":
             DEFAULT_VOXELS_PER_DIAMETER, "snapshots": len(snaps), "wall_seconds": wall,
@@ -118,11 +138,7 @@ def main(argv=None) -> int:
             "per_snapshot": [{k: s[k] for k in ("depth_m", "particle_porosity",
                                                 "voxel_porosity", "tortuosity", "D_eff",
                                                 "shape_zyx", "iterations", "solve_seconds",
-                                                "voxelise_seconds")}
-                             | {"second": {k: s["second_resolution"][k] for k in
-                                           ("voxel_porosity", "tortuosity", "D_eff",
-                                            "shape_zyx", "iterations", "solve_seconds")},
-                                "extrapolated": s["extrapolated"]}
+                                                "voxelise_seconds")} | detail(s)
                              for s in snaps]}
         print(f"microstructure of {len(snaps)} snapshots: {wall:.1f} s wall, "
               f"{cpu:.1f} s CPU", file=sys.stderr)

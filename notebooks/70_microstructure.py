@@ -14,17 +14,18 @@
 # are voxelised (exact centre-in-sphere tests, periodic in x and y, cropped by the plates),
 # and TauFactor 1.2.1 solves steady diffusion through the thickness for the tortuosity
 # factor tau and the relative effective diffusivity D_eff = porosity / tau. Every result is
-# computed at two voxel sizes and extrapolated linearly to zero voxel size.
+# resolution-converged: partial-volume (grey) voxels at 3, 4.5, 6.75, ... voxels per
+# smallest diameter, each level started from the previous one's potential, until tau
+# changes by less than 2 % between levels. The sequence is shown; the linear two-point
+# extrapolation of the last two levels stays as a cross-check. Three porosities are
+# compared: sphere sum, voxel image and the recipe's mass balance.
 #
 # **Inputs.** None: the run is made here (`tiny` preset, seed 0). Outputs in
 # `notebooks/_out/70_microstructure/` (or `$CALENDARING_NOTEBOOK_OUT`).
 #
-# **Expected run time.** Under 1 minute on 2 CPU cores (26 s measured on a 2-core machine
-# shared with a sweep: the run, then the microstructure in a few seconds at the default 4
-# voxels per 2 um diameter, with torch on one thread). Binary voxels this
-# coarse overestimate tau by tens of per cent: compare the extrapolated values, and compare
-# runs only at equal resolution. The tiny preset stops at 6.5 um (the paper: 19.5 um of a
-# 75 um coating).
+# **Expected run time.** About 1 minute on 2 CPU cores (the run, then the refinement of two
+# snapshots, with torch on one thread). The tiny preset stops at 6.5 um (the paper:
+# 19.5 um of a 75 um coating).
 
 # %%
 import time
@@ -42,8 +43,6 @@ from analysis.microstructure import (  # noqa: E402
     format_table,
     microstructure_table,
     plot_microstructure,
-    reference_diameter,
-    voxel_size_for,
     voxelise,
 )
 
@@ -68,12 +67,12 @@ print(f"run in {time.perf_counter() - t0:.1f} s; snapshots at "
 
 # %%
 t0 = time.perf_counter()
-res = analyse_run(run_file, snapshots=[first.index, last.index], voxels_per_diameter=4.0,
-                  second_resolution=True, progress=False, label="tiny R1")
-print(f"microstructure in {time.perf_counter() - t0:.1f} s; settings: voxel "
-      f"{res.settings['voxel_size_m'] * 1e6:.3f} um, "
-      f"{res.settings['voxels_per_diameter']:g} voxels per "
-      f"{res.settings['reference_diameter_m'] * 1e6:g} um, TauFactor "
+res = analyse_run(run_file, snapshots=[first.index, last.index], progress=False,
+                  label="tiny R1")
+print(f"microstructure in {time.perf_counter() - t0:.1f} s; settings: "
+      f"{res.settings['resolution']}, from {res.settings['voxels_per_diameter']:g} voxels per "
+      f"{res.settings['reference_diameter_m'] * 1e6:g} um, stop at a tau change < "
+      f"{100 * res.settings['refine_tol']:g} %, TauFactor "
       f"{res.settings['taufactor_version']}, tol {res.settings['tol']:g}")
 rows = microstructure_table({"tiny R1": res}, depths=(first.depth, last.depth))
 display(Markdown(format_table(rows)))
@@ -86,16 +85,34 @@ for s in res.snapshots:
           f"D_eff {j['D_eff']:.4f} (porosity / tau agrees to "
           f"{'n/a' if check is None else f'{check:.1e}'}), TauFactor converged "
           f"{j['converged']} in {j['iterations']} iterations")
+    ref = j["refinement"]
+    for lv in ref["levels"]:
+        print(f"    {lv['voxels_per_diameter']:5.2f} vox/d {lv['voxels']:>9,} voxels: tau "
+              f"{lv['tortuosity']}, change {lv.get('tortuosity_rel_change')}, "
+              f"{lv['iterations']} iterations, {lv['solve_seconds']:.1f} s")
+    ext = (j["extrapolated"] or {}).get("tortuosity")
+    print(f"    converged {ref['converged']} ({ref['reason'] or 'tau change below tol'}); "
+          f"cross-checks: linear extrapolation {ext}, Richardson "
+          f"{ref['tortuosity_richardson']}")
+    por = j["porosities"]
+    print(f"    porosity: sphere sum {100 * por['sphere_sum']:.2f} %, voxel "
+          f"{100 * por['voxel']:.2f} %, mass balance {100 * por['mass_balance']:.2f} %; "
+          f"pair overlaps {100 * por['pair_overlap']:.2f} % of the volume (AM-CB "
+          f"{100 * por['pair_overlap_am_cb']:.2f} %), plate caps {100 * por['plate_caps']:.2f} %")
+    assert ref["converged"] or ref["reason"], ref  # a stop always says why
+    assert abs(por["union_estimate"] - por["voxel"]) < 0.02, por  # the budget closes
 res.write_json(OUT / "microstructure.json")
 
 # %% [markdown]
-# Particle porosity (1 - sphere volume / cell volume) counts overlapping volume twice;
-# heavily squeezed carbon black makes the voxel porosity higher than it (README, comparison
-# section).
+# The sphere-sum porosity (1 - sphere volume / cell volume) counts overlapping volume twice
+# and caps pressed into the plates although they lie outside the gap. The summed lens
+# volumes of the overlapping pairs (mostly carbon black squeezed into active material) and
+# the plate caps close the gap to the voxel porosity up to triple overlaps; the mass
+# balance differs from the sphere sum by the builder's whole-particle rounding only.
 #
 # ## Against depth (Fig. 13 b-d)
-# Solid: the primary resolution; dotted: extrapolated to zero voxel size; dashed (porosity):
-# particle porosity.
+# Solid: the converged (finest) level; dotted: the linear extrapolation of the last two
+# levels; dashed (porosity): sphere-sum porosity.
 
 # %%
 for path in plot_microstructure({"tiny R1": res}, OUT):
@@ -103,15 +120,15 @@ for path in plot_microstructure({"tiny R1": res}, OUT):
 
 # %% [markdown]
 # ## What the solver sees
-# Mid-plane cross-sections (x-z) of the binary voxel images at the primary resolution
-# (`voxelise`: 1 = pore, 0 = solid), from the bottom plate (z = 0) to the top plate.
+# Mid-plane cross-sections (x-z) of the partial-volume voxel images at the finest level
+# (`voxelise`: pore fraction, 1 = pore, 0 = solid), from the bottom plate (z = 0) to the top.
 
 # %%
-h = voxel_size_for(rec.cell_x, reference_diameter(rec.config), 4.0)
+h = res.snapshots[-1].primary.voxel_size
 fig, axes = plt.subplots(1, 2, figsize=(9, 4.2), sharey=True)
 for ax, s in zip(axes, (first, last), strict=True):
     img = voxelise(s.position, s.radius, s.material, rec.cell_x, rec.cell_y, s.z_bottom,
-                   s.z_top, h)
+                   s.z_top, h, supersample=3)
     ax.imshow(img[:, img.shape[1] // 2, :], origin="lower", cmap="gray",
               extent=(0, to_um(rec.cell_x), 0, to_um(s.z_top - s.z_bottom)))
     ax.set_title(f"{to_um(s.depth):.1f} um: {img.shape} voxels (z, y, x), pore "

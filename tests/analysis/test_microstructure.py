@@ -1,5 +1,6 @@
 """Voxelisation, porosity, tortuosity and D_eff against geometries with known answers."""
 
+import itertools
 import json
 
 import numpy as np
@@ -252,7 +253,8 @@ def test_analyse_run_reads_the_run_file_and_keeps_one_voxel_size(tmp_path):
     from tests.analysis import write_small_run
 
     path = write_small_run(tmp_path / "small.h5")
-    res = analyse_run(path, voxels_per_diameter=2, progress=False, cb_phase=True)
+    res = analyse_run(path, voxels_per_diameter=2, progress=False, cb_phase=True,
+                      resolution="two-point")
     j = res.to_json()
     assert [s["depth_m"] for s in j["snapshots"]] == pytest.approx([0.0, 5e-6])
     assert len({s["voxel_size_m"] for s in j["snapshots"]}) == 1  # same voxels throughout
@@ -261,10 +263,12 @@ def test_analyse_run_reads_the_run_file_and_keeps_one_voxel_size(tmp_path):
         assert 0.0 < s["cb_volume_fraction"] < 1.0
         assert s["voxel_porosity"] > s["particle_porosity"] - 0.05  # overlaps count once
     only = analyse_run(path, snapshots=[1], voxels_per_diameter=2, progress=False,
-                       second_resolution=False)
+                       second_resolution=False, resolution="two-point")
     assert len(only.snapshots) == 1 and only.snapshots[0].second is None
     with pytest.raises(ConfigError, match="snapshots"):
         analyse_run(path, snapshots=[5], progress=False)
+    with pytest.raises(ConfigError, match="resolution"):
+        analyse_run(path, progress=False, resolution="three-point")
 
 
 @pytest.mark.gpu
@@ -277,3 +281,147 @@ def test_cuda_and_cpu_solves_agree():
     cpu = solve_tortuosity(img, device="cpu", tol=1e-3)
     gpu = solve_tortuosity(img, device="cuda", tol=1e-3)
     np.testing.assert_allclose(gpu.tortuosity, cpu.tortuosity, rtol=5e-3)
+
+
+# ---------------------------------------------------------------------------- refinement
+def _dilute_array(f=0.1, n=4):
+    """n^3 simple-cubic array of equal spheres at solid fraction f in the L^3 box, the
+    plates on the lattice's mid planes (mirror planes: equipotentials of the infinite
+    array, so the slab has the array's effective diffusivity)."""
+    a = L / n
+    r = a * (3 * f / (4 * np.pi)) ** (1 / 3)
+    g = (np.arange(n) + 0.5) * a
+    x, y, z = np.meshgrid(g, g, g, indexing="ij")
+    pos = np.column_stack([x.ravel(), y.ravel(), z.ravel()])
+    return make_snapshot(pos, np.full(len(pos), r), np.zeros(len(pos)), 0.0, L), r
+
+
+def test_converged_d_eff_of_a_dilute_sphere_array_matches_maxwell():
+    """Insulating spheres at solid fraction f in a conducting matrix: D_eff = 2 (1 - f) /
+    (2 + f) (Maxwell; Rayleigh's correction for a cubic array is ~1e-4 at f = 0.1), so tau =
+    (2 + f) / 2. Binary voxels at the first level are 15 % off; the refined partial-volume
+    answer is within the grey voxels' known residual (0.5-1 %)."""
+    from analysis.microstructure import converge_snapshot
+
+    f = 0.1
+    snap, r = _dilute_array(f)
+    res = converge_snapshot(snap, L, L, reference_diameter=2 * r, refine_tol=0.02)
+    j = res.to_json()
+    ref = j["refinement"]
+    assert ref["converged"] and ref["tortuosity_rel_change"] < 0.02
+    assert len(ref["levels"]) >= 2
+    assert j["D_eff"] == pytest.approx(2 * (1 - f) / (2 + f), rel=0.015)
+    assert j["tortuosity"] == pytest.approx((2 + f) / 2, rel=0.015)
+    assert j["voxel_porosity"] == pytest.approx(1 - f, abs=2e-3)
+    coarse = solve_tortuosity(voxelise(snap.position, snap.radius, snap.material, L, L, 0.0,
+                                       L, ref["levels"][0]["voxel_size_m"]), tol=1e-3)
+    assert abs(coarse.D_eff / (2 * (1 - f) / (2 + f)) - 1) > 0.1  # binary: far off
+    # the porosity budget: no overlaps, nothing past the plates
+    por = j["porosities"]
+    assert por["pair_overlap"] == 0.0 and por["plate_caps"] == 0.0
+    assert por["sphere_sum"] == pytest.approx(1 - f, rel=1e-12)
+    json.dumps(j, allow_nan=False)
+
+
+def test_refinement_levels_warm_starts_and_budget():
+    from analysis.microstructure import converge_snapshot, prolong_field, refinement_levels
+
+    hs = refinement_levels(L, 2e-6, start=3.0, ratio=1.5, max_levels=5)
+    assert all(b < a for a, b in itertools.pairwise(hs))
+    assert all(round(L / h) % 2 == 0 for h in hs)  # even lateral counts (TauFactor)
+    rng = np.random.default_rng(3)
+    pos = rng.uniform(0, L, (30, 3))
+    rad = rng.uniform(0.8e-6, 1.6e-6, 30)
+    snap = make_snapshot(pos, rad, np.zeros(30), 0.0, L)
+    warm = converge_snapshot(snap, L, L, reference_diameter=1.6e-6, refine_tol=0.01,
+                             max_levels=3).to_json()["refinement"]
+    cold = converge_snapshot(snap, L, L, reference_diameter=1.6e-6, refine_tol=0.01,
+                             max_levels=3, warm_start=False).to_json()["refinement"]
+    assert [lv["warm_start"] for lv in warm["levels"]] == [False] + [True] * (
+        len(warm["levels"]) - 1)
+    for a, b in zip(warm["levels"], cold["levels"], strict=True):
+        # the same answer from either start, to the solver's tolerance
+        assert a["tortuosity"] == pytest.approx(b["tortuosity"], rel=5e-3)
+    for k, lv in enumerate(warm["levels"][1:], start=1):
+        prev = warm["levels"][k - 1]["tortuosity"]
+        assert lv["tortuosity_rel_change"] == pytest.approx(
+            abs(lv["tortuosity"] - prev) / lv["tortuosity"])
+    if warm["converged"]:
+        assert warm["tortuosity_rel_change"] < 0.01
+    else:
+        assert len(warm["levels"]) == 3 and "max_levels" in warm["reason"]
+    # a budget below the second level: one level, not converged, the reason says why
+    n0 = warm["levels"][0]["voxels"]
+    small = converge_snapshot(snap, L, L, reference_diameter=1.6e-6, max_voxels=n0)
+    ref = small.to_json()["refinement"]
+    assert len(ref["levels"]) == 1 and not ref["converged"] and "max_voxels" in ref["reason"]
+    with pytest.raises(ConfigError, match="max_voxels"):
+        converge_snapshot(snap, L, L, reference_diameter=1.6e-6, max_voxels=n0 - 1)
+    with pytest.raises(ConfigError, match="refine_tol"):
+        converge_snapshot(snap, L, L, refine_tol=0.0)
+    # prolongation: a linear potential stays linear (nearest-cell values) on a finer grid
+    coarse = np.broadcast_to(np.linspace(-0.4, 0.4, 5)[:, None, None], (5, 4, 4)).copy()
+    fine = prolong_field(coarse, np.ones(coarse.shape, bool), (10, 8, 8))
+    np.testing.assert_allclose(fine[::2, 0, 0], coarse[:, 0, 0], rtol=1e-6)
+    solid = np.ones(coarse.shape, bool)
+    solid[2, 1, 1] = False  # a solid coarse voxel takes its layer's mean potential
+    assert prolong_field(coarse, solid, (10, 8, 8))[4, 2, 2] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_lens_cap_volumes_and_the_porosity_budget():
+    from analysis.porosity import cap_volume, lens_volume, porosity_budget, recipe_solid_thickness
+    from calendaring.core.config import load_preset
+
+    R = 1.0e-6
+    for d in (0.3e-6, 1.0e-6, 1.9e-6):  # equal spheres: pi (4R + d)(2R - d)^2 / 12
+        assert lens_volume(R, R, d) == pytest.approx(np.pi * (4 * R + d) * (2 * R - d) ** 2 / 12)
+    assert lens_volume(R, 0.4e-6, 0.5e-6) == pytest.approx(sphere_volume(0.4e-6))  # inside
+    assert lens_volume(R, R, 2.0e-6) == 0.0
+    assert cap_volume(R, R) == pytest.approx(sphere_volume(R) / 2)
+    assert cap_volume(R, 3 * R) == pytest.approx(sphere_volume(R))
+    # two overlapping spheres across the periodic x face (AM + CB) and one sphere pressed
+    # 0.4 um into the bottom plate: the union's porosity from the budget equals fine
+    # partial-volume voxels
+    pos = [[0.3e-6, 5e-6, 5e-6], [L - 0.9e-6, 5e-6, 5e-6], [5e-6, 5e-6, 0.6e-6]]
+    rad = [1.2e-6, 0.8e-6, 1.0e-6]
+    mat = [0, 1, 0]
+    img = voxelise(pos, rad, mat, L, L, 0.0, L, L / 100, supersample=4)
+    b = porosity_budget(pos, rad, mat, L, L, 0.0, L, voxel_porosity=float(img.mean()))
+    assert b["overlapping_pairs"] == 1 and b["overlapping_pairs_am_cb"] == 1
+    assert b["pair_overlap"] == pytest.approx(lens_volume(1.2e-6, 0.8e-6, 1.2e-6) / L**3)
+    assert b["pair_overlap_am_cb"] == b["pair_overlap"] and b["pair_overlap_am_am"] == 0.0
+    assert b["plate_caps"] == pytest.approx(cap_volume(1.0e-6, 0.4e-6) / L**3)
+    assert b["union_estimate"] == pytest.approx(float(img.mean()), abs=2e-5)
+    assert abs(b["multiple_overlap_and_voxel_error"]) < 2e-5
+    # the paper's recipe (2.56 g/cm3, 94/6 wt%, 4740 / 2200 kg/m3) at the coating
+    # thickness: 1 - 2560 (0.94 / 4740 + 0.06 / 2200) = 42.25 %
+    cfg = load_preset("paper")
+    solid = recipe_solid_thickness(cfg)
+    h0 = cfg.electrode.thickness
+    got = porosity_budget(pos, rad, mat, L, L, 0.0, h0, solid_thickness=solid)["mass_balance"]
+    assert got == pytest.approx(0.42250, abs=5e-5)
+
+
+def test_analyse_run_converges_by_default(tmp_path):
+    from analysis.microstructure import analyse_run
+    from tests.analysis import write_small_run
+
+    path = write_small_run(tmp_path / "small.h5")
+    res = analyse_run(path, progress=False, max_levels=3)
+    j = res.to_json()
+    assert j["settings"]["resolution"] == "converge"
+    for s in j["snapshots"]:
+        ref = s["refinement"]
+        assert 1 <= len(ref["levels"]) <= 3 and ref["levels"][0]["voxels_per_diameter"] == \
+            pytest.approx(3.0, rel=0.1)
+        assert s["voxel_size_m"] == ref["levels"][-1]["voxel_size_m"]  # the finest level
+        assert s["supersample"] == 3
+        por = s["porosities"]
+        assert por["sphere_sum"] == pytest.approx(s["particle_porosity"])
+        assert por["mass_balance"] is not None and por["voxel"] == s["voxel_porosity"]
+    rows = microstructure_table({"small": res}, depths=(0.0,))
+    first = j["snapshots"][0]["refinement"]
+    assert rows[0]["refinement"]["levels"] == len(first["levels"])
+    table = format_table(rows)
+    assert f"{first['levels'][0]['tortuosity']:.3f}" in table
+    json.dumps(j, allow_nan=False)
