@@ -424,4 +424,9 @@ def test_analyse_run_converges_by_default(tmp_path):
     assert rows[0]["refinement"]["levels"] == len(first["levels"])
     table = format_table(rows)
     assert f"{first['levels'][0]['tortuosity']:.3f}" in table
+    # carbon black as its own conducting phase: binary labels, warm starts as well
+    cb = analyse_run(path, snapshots=[1], progress=False, max_levels=2, cb_phase=True)
+    s = cb.to_json()["snapshots"][0]
+    assert s["supersample"] == 1 and 0.0 < s["cb_volume_fraction"] < 1.0
+    assert s["refinement"]["levels"][-1]["warm_start"] == (len(s["refinement"]["levels"]) > 1)
     json.dumps(j, allow_nan=False)
