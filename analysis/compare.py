@@ -489,6 +489,8 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
     if micro:
         mk = dict(micro_kw or {})
         mk.setdefault("device", "cpu")
+        # in the cache key: a cache of the former two-point default is not reused
+        mk.setdefault("resolution", "converge")
         mk.pop("progress", None)
         report["microstructure"] = {}
         for n, r in ok.items():
