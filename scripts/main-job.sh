@@ -16,9 +16,9 @@ calendaring inspect "$OUT/quick.h5" --json > "$OUT/summary.json"
 calendaring plot "$OUT/quick.h5"
 calendaring export "$OUT/quick.h5" --snapshot 4 --vtk
 # resolution-converged (partial-volume voxels refined until tau changes < 2 %), the levels
-# kept to 7 M voxels (10 voxels per 2 um here) so that the main job stays quick; a stop
+# kept to 2.5 M voxels (6.8 voxels per 2 um here) so that the main job stays quick; a stop
 # before convergence is reported in microstructure.md
-analysis microstructure "$OUT/quick.h5" --snapshots 0,4 --max-voxels 7e6 --out-dir "$OUT/microstructure"
+analysis microstructure "$OUT/quick.h5" --snapshots 0,4 --max-voxels 2.5e6 --out-dir "$OUT/microstructure"
 echo
 echo "main job done; outputs in $OUT:"
 echo "  run file (HDF5)              $OUT/quick.h5"
