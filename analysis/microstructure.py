@@ -656,25 +656,48 @@ class SnapshotMicrostructure:
 
 
 def _resolution(snapshot, cell_x, cell_y, voxel_size, d_ref, supersample, cb_phase,
-                cb_diffusivity, device, tol) -> ResolutionResult:
+                cb_diffusivity, device, tol, previous=None, keep_field=False
+                ) -> tuple[ResolutionResult, tuple[np.ndarray, np.ndarray] | None]:
+    """Voxelise and solve one snapshot at one voxel size. ``previous``: the (potential,
+    conducting mask) of a coarser level to start from (:func:`prolong_field`); with
+    ``keep_field`` the same pair of this level is returned for the next one, else None."""
     t0 = time.perf_counter()
     img = voxelise(snapshot.position, snapshot.radius, snapshot.material, cell_x, cell_y,
                    snapshot.z_bottom, snapshot.z_top, voxel_size, supersample=supersample,
                    phases="am_cb" if cb_phase else "solid")
     tv = time.perf_counter() - t0
     grid = voxel_grid(cell_x, cell_y, snapshot.z_bottom, snapshot.z_top, voxel_size)
+    init = None if previous is None else prolong_field(*previous, img.shape)
     if cb_phase:
         porosity = float(np.mean(img == 0))
         cb = float(np.mean(img == 2))
-        tr = solve_tortuosity(img, device=device, tol=tol, cb_diffusivity=cb_diffusivity)
+        tr = solve_tortuosity(img, device=device, tol=tol, cb_diffusivity=cb_diffusivity,
+                              initial_field=init, keep_field=keep_field)
     else:
         porosity = float(img.mean(dtype=np.float64))
         cb = None
-        tr = solve_tortuosity(img, device=device, tol=tol)
-    return ResolutionResult(voxel_size=voxel_size, voxel_edges=grid["voxel_edges_m"],
-                            voxels_per_diameter=d_ref / voxel_size, shape=grid["shape"],
-                            supersample=supersample, voxel_porosity=porosity, cb_fraction=cb,
-                            transport=tr, voxelise_seconds=tv)
+        tr = solve_tortuosity(img, device=device, tol=tol, initial_field=init,
+                              keep_field=keep_field)
+    state = None
+    if keep_field and tr.potential is not None:  # none when it does not percolate
+        state = (tr.potential, (img != 1) if cb_phase else (img > 0))
+        tr.potential = None
+    res = ResolutionResult(voxel_size=voxel_size, voxel_edges=grid["voxel_edges_m"],
+                           voxels_per_diameter=d_ref / voxel_size, shape=grid["shape"],
+                           supersample=supersample, voxel_porosity=porosity, cb_fraction=cb,
+                           transport=tr, voxelise_seconds=tv)
+    return res, state
+
+
+def _snapshot_result(snapshot, cell_x, cell_y, primary, second=None,
+                     **extra) -> SnapshotMicrostructure:
+    return SnapshotMicrostructure(
+        index=int(snapshot.index), label=str(snapshot.label), depth=float(snapshot.depth),
+        z_bottom=float(snapshot.z_bottom), z_top=float(snapshot.z_top),
+        n_particles=len(snapshot.radius),
+        smallest_diameter=float(2 * snapshot.radius.min()) if len(snapshot.radius) else 0.0,
+        particle_porosity=float(snapshot.porosity(cell_x, cell_y)), primary=primary,
+        second=second, **extra)
 
 
 def _porosities(snapshot, cell_x, cell_y, solid_thickness, voxel_porosity):
@@ -762,49 +785,29 @@ def converge_snapshot(snapshot, cell_x: float, cell_y: float, *,
     levels: list[ResolutionResult] = []
     rows, taus = [], []
     converged, reason, change = False, None, None
-    prev_field, prev_conducting = None, None
+    state = None  # the previous level's potential and conducting mask
     for k, h in enumerate(hs):
         grid = voxel_grid(cell_x, cell_y, snapshot.z_bottom, snapshot.z_top, h)
         n_vox = int(np.prod(grid["shape"]))
         if n_vox > max_voxels:
-            reason = (f"the next level ({d_ref_text(reference_diameter, h)}, {n_vox:,} voxels) "
+            reason = (f"the next level ({reference_diameter / h:.2f} voxels per diameter, "
+                      f"{h * 1e6:.3f} um, {n_vox:,} voxels) "
                       f"exceeds max_voxels = {max_voxels:,.0f}")
             break
         if progress is not None:
             progress(f"level {k}: {reference_diameter / h:.2f} vox/d, {n_vox:,} voxels")
-        t0 = time.perf_counter()
-        img = voxelise(snapshot.position, snapshot.radius, snapshot.material, cell_x, cell_y,
-                       snapshot.z_bottom, snapshot.z_top, h, supersample=supersample,
-                       phases="am_cb" if cb_phase else "solid")
-        tv = time.perf_counter() - t0
-        conducting = (img != 1) if cb_phase else (img > 0)
-        init = None
-        if warm_start and prev_field is not None:
-            init = prolong_field(prev_field, prev_conducting, img.shape)
-        if cb_phase:
-            porosity, cb = float(np.mean(img == 0)), float(np.mean(img == 2))
-            tr = solve_tortuosity(img, device=device, tol=tol, cb_diffusivity=cb_diffusivity,
-                                  initial_field=init, keep_field=warm_start)
-        else:
-            porosity, cb = float(img.mean(dtype=np.float64)), None
-            tr = solve_tortuosity(img, device=device, tol=tol, initial_field=init,
-                                  keep_field=warm_start)
-        del img, init
-        prev_field, prev_conducting = tr.potential, conducting
-        tr.potential = None
-        res = ResolutionResult(voxel_size=h, voxel_edges=grid["voxel_edges_m"],
-                               voxels_per_diameter=reference_diameter / h,
-                               shape=grid["shape"], supersample=supersample,
-                               voxel_porosity=porosity, cb_fraction=cb, transport=tr,
-                               voxelise_seconds=tv)
+        res, state = _resolution(snapshot, cell_x, cell_y, h, reference_diameter,
+                                 supersample, cb_phase, cb_diffusivity, device, tol,
+                                 previous=state, keep_field=warm_start)
+        tr = res.transport
         levels.append(res)
         taus.append(tr.tortuosity)
         rows.append({"voxel_size_m": h, "voxels_per_diameter": reference_diameter / h,
                      "shape_zyx": list(grid["shape"]), "voxels": n_vox,
-                     "voxel_porosity": porosity, "tortuosity": tr.tortuosity,
+                     "voxel_porosity": res.voxel_porosity, "tortuosity": tr.tortuosity,
                      "D_eff": tr.D_eff, "iterations": tr.iterations,
                      "solver_converged": tr.converged, "warm_start": tr.warm_start,
-                     "solve_seconds": tr.seconds, "voxelise_seconds": tv})
+                     "solve_seconds": tr.seconds, "voxelise_seconds": res.voxelise_seconds})
         if len(taus) >= 2 and taus[-1] is not None and taus[-2] is not None:
             change = abs(taus[-1] - taus[-2]) / taus[-1]
             rows[-1]["tortuosity_rel_change"] = change
@@ -830,18 +833,9 @@ def converge_snapshot(snapshot, cell_x: float, cell_y: float, *,
                   **_richardson(taus, [r["voxel_size_m"] for r in rows])}
     primary = levels[-1]
     por = _porosities(snapshot, cell_x, cell_y, solid_thickness, primary.voxel_porosity)
-    return SnapshotMicrostructure(
-        index=int(snapshot.index), label=str(snapshot.label), depth=float(snapshot.depth),
-        z_bottom=float(snapshot.z_bottom), z_top=float(snapshot.z_top),
-        n_particles=len(snapshot.radius),
-        smallest_diameter=float(2 * snapshot.radius.min()) if len(snapshot.radius) else 0.0,
-        particle_porosity=float(snapshot.porosity(cell_x, cell_y)), primary=primary,
-        second=levels[-2] if len(levels) > 1 else None, refinement=refinement,
-        porosities=por)
-
-
-def d_ref_text(d_ref: float, h: float) -> str:
-    return f"{d_ref / h:.2f} voxels per diameter, {h * 1e6:.3f} um"
+    return _snapshot_result(snapshot, cell_x, cell_y, primary,
+                            levels[-2] if len(levels) > 1 else None, refinement=refinement,
+                            porosities=por)
 
 
 def analyse_snapshot(snapshot, cell_x: float, cell_y: float, *,
@@ -875,20 +869,14 @@ def analyse_snapshot(snapshot, cell_x: float, cell_y: float, *,
         raise ConfigError("second_factor", second_factor, "in (0, 1) or (1, 4]")
     h1 = voxel_size_for(cell_x, reference_diameter, voxels_per_diameter)
     args = (reference_diameter, supersample, cb_phase, cb_diffusivity, device, tol)
-    primary = _resolution(snapshot, cell_x, cell_y, h1, *args)
+    primary, _ = _resolution(snapshot, cell_x, cell_y, h1, *args)
     second = None
     if second_resolution:
         h2 = voxel_size_for(cell_x, reference_diameter, voxels_per_diameter * second_factor)
         if h2 == h1:  # too coarse to differ: one lateral voxel pair coarser
             h2 = cell_x / max(2, round(cell_x / h1) - 2)
-        second = _resolution(snapshot, cell_x, cell_y, h2, *args)
-    return SnapshotMicrostructure(
-        index=int(snapshot.index), label=str(snapshot.label), depth=float(snapshot.depth),
-        z_bottom=float(snapshot.z_bottom), z_top=float(snapshot.z_top),
-        n_particles=len(snapshot.radius),
-        smallest_diameter=float(2 * snapshot.radius.min()) if len(snapshot.radius) else 0.0,
-        particle_porosity=float(snapshot.porosity(cell_x, cell_y)), primary=primary,
-        second=second)
+        second, _ = _resolution(snapshot, cell_x, cell_y, h2, *args)
+    return _snapshot_result(snapshot, cell_x, cell_y, primary, second)
 
 
 @dataclass
