@@ -77,11 +77,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="converge: partial-volume voxels refined until tau changes by less "
                    "than --refine-tol between levels (default); two-point: one resolution, "
                    "a coarser one and the linear extrapolation")
-    m.add_argument("--refine-tol", type=float, default=0.02,
-                   help="relative tau change that ends the refinement")
-    m.add_argument("--max-voxels", type=float, default=40e6,
-                   help="largest voxel count of a refinement level")
-    m.add_argument("--max-levels", type=int, default=5, help="most refinement levels")
+    m.add_argument("--refine-tol", type=float, help="relative tau change that ends the "
+                   "refinement (default 0.02)")
+    m.add_argument("--max-voxels", type=float, help="largest voxel count of a refinement "
+                   "level (default 4e7)")
+    m.add_argument("--max-levels", type=int, help="most refinement levels (default 5)")
     m.add_argument("--voxels-per-diameter", type=float, help="voxels across the smallest "
                    "particle diameter: the first level (default 3) or the two-point "
                    "resolution (default 4)")
@@ -218,11 +218,11 @@ def cmd_microstructure(args) -> int:
         raise ConfigError("RUN", args.run_file, "a run file with snapshots")
     if args.supersample is not None and args.supersample < 1:
         raise ConfigError("--supersample", args.supersample, "an integer >= 1")
-    if not 0 < args.refine_tol < 1:
+    if args.refine_tol is not None and not 0 < args.refine_tol < 1:
         raise ConfigError("--refine-tol", args.refine_tol, "in (0, 1)")
-    if not (args.max_voxels >= 1 and args.max_voxels < float("inf")):
+    if args.max_voxels is not None and not 1 <= args.max_voxels < float("inf"):
         raise ConfigError("--max-voxels", args.max_voxels, ">= 1 (finite)")
-    if args.max_levels < 2:
+    if args.max_levels is not None and args.max_levels < 2:
         raise ConfigError("--max-levels", args.max_levels, "an integer >= 2")
     if args.voxels_per_diameter is not None and args.voxels_per_diameter <= 0:
         raise ConfigError("--voxels-per-diameter", args.voxels_per_diameter, "> 0")
@@ -231,14 +231,13 @@ def cmd_microstructure(args) -> int:
     out = _out_dir(args.out_dir, args.run_file, "microstructure")
     from analysis.microstructure import analyse_run, plot_microstructure
 
-    kw = {} if args.voxels_per_diameter is None else \
-        {"voxels_per_diameter": args.voxels_per_diameter}
+    # options not given keep analyse_run's defaults (analysis.microstructure.REFINE_*)
+    kw = {k: v for k in ("voxels_per_diameter", "refine_tol", "max_voxels", "max_levels")
+          if (v := getattr(args, k)) is not None}
     res = analyse_run(rec.path, snapshots=snaps, supersample=args.supersample,
                       cb_phase=args.cb_phase, device=args.device, tol=args.tol,
                       second_resolution=not args.no_second_resolution,
-                      progress=not args.quiet, resolution=args.resolution,
-                      refine_tol=args.refine_tol, max_voxels=args.max_voxels,
-                      max_levels=args.max_levels, **kw)
+                      progress=not args.quiet, resolution=args.resolution, **kw)
     report = {"run_file": str(rec.path), "result": res.to_json(), "figures": [],
               "render_errors": []}
     out.mkdir(parents=True, exist_ok=True)
