@@ -335,9 +335,10 @@ def _periodic_multiphase_class():
     return PeriodicMultiPhaseSolver
 
 
-def percolating_fraction(conducting: np.ndarray) -> float:
+def percolating_fraction(conducting: np.ndarray, periodic: bool = True) -> float:
     """Fraction of the conducting voxels (bool, (z, y, x)) in face-connected clusters that
-    touch both z faces, with periodic y and x (TauFactor's ``extract_through_feature``)."""
+    touch both z faces, with periodic y and x unless ``periodic`` is False (TauFactor's
+    ``extract_through_feature``)."""
     from taufactor.metrics import extract_through_feature
 
     img = np.ascontiguousarray(conducting, dtype=np.uint8)
@@ -345,7 +346,7 @@ def percolating_fraction(conducting: np.ndarray) -> float:
         return 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _, frac = extract_through_feature(img, 1, "x", periodic=[False, True, True],
+        _, frac = extract_through_feature(img, 1, "x", periodic=[False, periodic, periodic],
                                           connectivity=1)
     return float(np.asarray(frac).reshape(-1)[0])
 
@@ -398,7 +399,7 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
                      cb_diffusivity: float | None = None,
                      iter_limit: int = DEFAULT_ITER_LIMIT,
                      initial_field: np.ndarray | None = None,
-                     keep_field: bool = False) -> TransportResult:
+                     keep_field: bool = False, periodic: bool = True) -> TransportResult:
     """Tortuosity factor and relative D_eff through axis 0 of a voxel image (TauFactor).
 
     Args:
@@ -415,6 +416,8 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
             :func:`prolong_field`) instead of TauFactor's linear profile. Only the start
             changes: the solve stops on the same criterion.
         keep_field: return the solved potential ((nz, ny, nx), float32) in ``potential``.
+        periodic: lateral faces periodic (a periodic cell, the default), or no-flux side
+            walls (a window cut from a cell: TauFactor's ``Solver`` / ``MultiPhaseSolver``).
 
     Returns:
         :class:`TransportResult`. A conducting phase without a face-connected path between
@@ -473,12 +476,14 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
         cond = None
         solver_name = "PeriodicSolver"
         d_mean = porosity
-    frac = percolating_fraction(conducting)
+    if not periodic:
+        solver_name = solver_name.replace("Periodic", "") or "Solver"
+    frac = percolating_fraction(conducting, periodic)
     cfrac = float(conducting.mean())
     # TauFactor's red-black SOR sweep with periodic lateral faces diverges when a periodic
     # axis has an odd length (two neighbours across the face share a colour); two periodic
     # copies side by side are the same structure with an even length.
-    reps = (1, 1 + labels.shape[1] % 2, 1 + labels.shape[2] % 2)
+    reps = (1, 1 + labels.shape[1] % 2, 1 + labels.shape[2] % 2) if periodic else (1, 1, 1)
     if reps != (1, 1, 1):
         labels = np.tile(labels, reps)
     if frac == 0.0:
@@ -486,16 +491,19 @@ def solve_tortuosity(img: np.ndarray, *, device: str = "cpu", tol: float = DEFAU
         return TransportResult(
             porosity=porosity, tortuosity=None, D_eff=0.0, D_eff_check=None,
             reason=f"the {what} does not percolate through the thickness (no face-connected "
-                   f"path between the plates, lateral faces periodic)",
+                   f"path between the plates, lateral faces "
+                   f"{'periodic' if periodic else 'closed'})",
             percolating_fraction=0.0, conducting_fraction=cfrac, solver=solver_name,
             iterations=0, converged=True, seconds=0.0)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if cond is None:
-            solver = taufactor.PeriodicSolver(labels, device=device)
+            solver = (taufactor.PeriodicSolver if periodic else taufactor.Solver)(
+                labels, device=device)
         else:
-            solver = _periodic_multiphase_class()(labels, cond=cond, device=device)
+            solver = (_periodic_multiphase_class() if periodic else taufactor.MultiPhaseSolver)(
+                labels, cond=cond, device=device)
         if initial_field is not None:
             start = np.asarray(initial_field, dtype=np.float32)
             if start.shape != img.shape:

@@ -3,9 +3,10 @@
 The refinement of ``analysis.microstructure.converge_snapshot`` runs on the whole periodic
 cell, where a 100 um snapshot reaches its voxel budget at 6.8 voxels per 2 um. This script
 takes a W x W um window of the snapshot (full thickness) and refines it further, with the
-same partial-volume voxels (3^3 sub-voxels) and TauFactor's non-periodic MultiPhaseSolver
-(no-flux side walls), to see how tau behaves below the whole cell's finest voxel: the
-level-to-level changes, the observed order and what a 2 % stopping rule would report.
+same partial-volume voxels (3^3 sub-voxels) and ``solve_tortuosity(..., periodic=False)``
+(TauFactor's MultiPhaseSolver, no-flux side walls), to see how tau behaves below the whole
+cell's finest voxel: the level-to-level changes, the observed order and what a 2 %
+stopping rule would report.
 
 The window is voxelised as a periodic box of W + 2 m (m: the largest radius and a voxel)
 holding every sphere (and periodic image) whose centre lies within m of the window, then
@@ -21,7 +22,6 @@ import argparse
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -45,9 +45,7 @@ def window_spheres(snap, cell_x, cell_y, x0, y0, width, margin):
 
 
 def solve_window(snap, cell_x, cell_y, x0, y0, width, vpd, d_ref, tol):
-    from taufactor import MultiPhaseSolver
-
-    from analysis.microstructure import voxelise
+    from analysis.microstructure import solve_tortuosity, voxelise
 
     n = max(2, round(width * vpd / d_ref))
     h = width / n
@@ -58,23 +56,12 @@ def solve_window(snap, cell_x, cell_y, x0, y0, width, vpd, d_ref, tol):
     img = voxelise(pos, rad, np.zeros(len(rad)), box, box, snap.z_bottom, snap.z_top, h,
                    supersample=3)[:, k:k + n, k:k + n]
     tv = time.perf_counter() - t0
-    levels, labels = np.unique(img, return_inverse=True)
-    labels = labels.reshape(img.shape)
-    cond = {int(i): float(v) for i, v in enumerate(levels) if v > 0}
-    if levels[0] > 0:  # no solid voxel: keep 0 free for the solid phase
-        labels = labels + 1
-        cond = {i + 1: v for i, v in enumerate(levels.tolist())}
-    t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        solver = MultiPhaseSolver(labels, cond=cond, device="cpu")
-        solver.solve(iter_limit=40_000, verbose=False, conv_crit=tol)
+    tr = solve_tortuosity(img, device="cpu", tol=tol, iter_limit=40_000, periodic=False)
     return {"voxels_per_diameter": d_ref / h, "voxel_size_m": h, "shape_zyx": list(img.shape),
             "voxels": int(img.size), "voxel_porosity": float(img.mean(dtype=np.float64)),
-            "tortuosity": float(np.asarray(solver.tau).reshape(-1)[0]),
-            "D_eff": float(np.asarray(solver.D_eff).reshape(-1)[0]),
-            "iterations": int(solver.iter), "solver_converged": bool(solver.converged),
-            "voxelise_seconds": tv, "solve_seconds": time.perf_counter() - t0}
+            "tortuosity": tr.tortuosity, "D_eff": tr.D_eff, "iterations": tr.iterations,
+            "solver_converged": tr.converged, "solver": tr.solver, "voxelise_seconds": tv,
+            "solve_seconds": tr.seconds}
 
 
 def main(argv=None) -> int:

@@ -198,6 +198,14 @@ def test_lateral_periodicity_is_respected():
         assert res.tortuosity is not None and res.percolating_fraction == 1.0
         # 21 pore voxels, one lateral step: the flux path is 21 voxels long for 20 layers
         assert 1.0 < res.tortuosity < 1.2
+        # closed side walls (a window): the same path is cut at the face
+        closed = solve_tortuosity(image, device="cpu", tol=1e-3, periodic=False)
+        assert closed.tortuosity is None and "closed" in closed.reason
+    straight = np.zeros((20, 8, 8), np.float32)
+    straight[:, 3, 2] = 1.0  # a straight channel conducts with or without periodic faces
+    for periodic in (True, False):
+        res = solve_tortuosity(straight, device="cpu", tol=1e-3, periodic=periodic)
+        np.testing.assert_allclose(res.tortuosity, 1.0, atol=2e-3)
 
 
 def test_d_eff_is_porosity_over_tortuosity_on_a_sphere_packing():
