@@ -39,5 +39,17 @@ for dir in designs digests; do
         copy "${f#"$src"/}"
     done < <(find "$src/$dir" -type f -print0)
 done
-n=$(find "$dst/digests" -name '*.h5' 2>/dev/null | wc -l)
+n=0
+if [ -d "$dst/digests" ]; then n=$(find "$dst/digests" -name '*.h5' | wc -l); fi
 echo "sweep-keep: $copied files copied to $dst ($n digests there)"
+# Kept files that git ignores would never be committed, and the sweep would be lost with the
+# machine: refuse loudly instead of keeping them silently.
+if [ "$restore" = 0 ] && git -C "$dst" rev-parse --is-inside-work-tree > /dev/null 2>&1; then
+    ignored=$(cd "$dst" && find . -type f ! -name '*.tmp*' -print0 \
+        | { git check-ignore -z --stdin --no-index || true; } | tr '\0' ' ')
+    if [ -n "$ignored" ]; then
+        echo "sweep-keep: git ignores files kept in $dst, so they would not be committed" \
+            "(add a negated pattern to .gitignore): ${ignored:0:300}" >&2
+        exit 3
+    fi
+fi

@@ -149,3 +149,36 @@ def test_sweep_keep_round_trip_resumes_a_sweep_on_a_fresh_machine(sweep_folder, 
     bad = subprocess.run(["bash", str(script), str(tmp_path / "nothing"), str(keep)],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "manifest.json not found" in bad.stderr
+
+
+def test_sweep_keep_refuses_a_keep_folder_that_git_ignores(sweep_folder, tmp_path):
+    """Keeping digests into a folder of a git work tree that ignores them would lose the
+    sweep with the machine: the script stops with exit code 3 and names the files; the
+    repository's own keep folder (data/sweeps/) is not ignored."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    from calendaring.data.sweep import write_manifest
+
+    if shutil.which("git") is None:
+        pytest.skip("git not installed")
+    root = Path(__file__).resolve().parents[2]
+    script = root / "scripts" / "sweep-keep.sh"
+    write_manifest(sweep_folder, {})
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    (repo / ".gitignore").write_text("*.h5\n")
+    res = subprocess.run(["bash", str(script), str(sweep_folder), str(repo / "keep")],
+                         capture_output=True, text=True)
+    assert res.returncode == 3 and "git ignores" in res.stderr and ".h5" in res.stderr
+    (repo / ".gitignore").write_text("*.h5\n!keep/digests/*.h5\n")
+    res = subprocess.run(["bash", str(script), str(sweep_folder), str(repo / "keep")],
+                         capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    if (root / ".git").exists():
+        probe = "data/sweeps/rve/digests/run.h5"
+        res = subprocess.run(["git", "-C", str(root), "check-ignore", "-q", "--no-index",
+                              probe], capture_output=True)
+        assert res.returncode == 1, f"{probe} is git-ignored"
