@@ -37,7 +37,7 @@ _export("calendaring.core.units", "to_mpa", "to_um")
 _export("calendaring.core.fileio", "save_figure", "write_json", "write_text")
 _export("calendaring.core.config", "SimConfig", "format_override", "load_config",
         "load_config_dict", "load_preset", "pair_key", "parse_override", "with_overrides",
-        "config_hash", "PRESETS")
+        "config_hash", "config_json", "PRESETS")
 _export("calendaring.core.cli_contract", "ContractParser", "EXIT_BAD_INPUT", "EXIT_BUG",
         "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_UNSTABLE", "input_file", "input_folder",
         "integer", "output_path", "real", "run_cli")
@@ -55,8 +55,9 @@ _export("calendaring.data.curves", "resample_pressure", "smooth")
 _export("calendaring.data.dataset", "Dataset", "DatasetError", "KL_FLOOR", "bin_centres",
         "bin_events", "build_dataset", "centroids", "histogram_edges", "kl_divergence",
         "noise_floor", "read_dataset", "sampled_kl_floor", "synthetic_dataset",
-        "write_dataset")
-_export("calendaring.data.sweep", "read_manifest")
+        "write_dataset", "append_runs", "dataset_config")
+_export("calendaring.data.design", "read_design_csv", "write_design_csv")
+_export("calendaring.data.sweep", "SweepOptions", "read_manifest", "sweep")
 _export("calendaring.cli", "summary")
 #: modules exported whole
 _MODULES = {"eepa": "calendaring.engine.laws.eepa"}

@@ -41,6 +41,7 @@ from calendaring.core.cli_contract import (
 )
 from calendaring.core.config import (
     ARCHES,
+    CONFIG_SUFFIXES,
     PRESETS,
     SEED_MAX,
     THREADS_MAX,
@@ -106,7 +107,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="seed of the design (default --seed)")
     s.add_argument("--replicates", type=integer(1, 10**6), default=1,
                    help="seeds per design point")
-    s.add_argument("--role", default="train", help="train | replicate | holdout")
+    s.add_argument("--role", default="train", help="train | replicate | holdout | refine")
     s.add_argument("--out", required=True, help="sweep folder (created; reused to resume)")
     s.add_argument("--scheduler", help="address of a running Dask scheduler "
                                        "(default: a LocalCluster on this machine)")
@@ -178,9 +179,9 @@ def _config_args(r) -> None:
 def _run_config(args):
     if bool(args.config) == bool(args.preset):
         raise ConfigError("config", args.config or args.preset,
-                          "exactly one of CONFIG.toml or --preset NAME")
+                          "exactly one of CONFIG.toml (or .json) or --preset NAME")
     cfg = (load_preset(args.preset) if args.preset
-           else load_config(input_file(args.config, "config", (".toml",))))
+           else load_config(input_file(args.config, "config", CONFIG_SUFFIXES)))
     overrides = dict(parse_override(s) for s in args.set)
     if args.arch:
         overrides["numerics.arch"] = args.arch
@@ -235,9 +236,9 @@ def cmd_sweep(args) -> int:
 
     if bool(args.config) == bool(args.preset):
         raise ConfigError("config", args.config or args.preset,
-                          "exactly one of CONFIG.toml or --preset NAME")
+                          "exactly one of CONFIG.toml (or .json) or --preset NAME")
     if args.config:
-        input_file(args.config, "config", (".toml",))
+        input_file(args.config, "config", CONFIG_SUFFIXES)
     out = output_path(args.out, "--out", folder=True)
     source = f"preset:{args.preset}" if args.preset else str(Path(args.config).resolve())
     opt = SweepOptions(source=source, out=out, design=args.design, n=args.n, seed=args.seed,

@@ -1,4 +1,4 @@
-"""Command line: ``inverse calibrate | verify | validate``.
+"""Command line: ``inverse calibrate | verify | validate | refine``.
 
 Exit codes: 0 success, 2 bad input (nothing written), 1 anything else.
 
@@ -8,6 +8,8 @@ Exit codes: 0 success, 2 bad input (nothing written), 1 anything else.
     inverse calibrate --model model.pt --target curve.csv --out result.json --multistart 64
     inverse verify result.json --preset quick --seeds 3 --draws 4
     inverse validate --model model.pt --dataset dataset.h5 --out validation/
+    inverse refine --model model.pt --target curve.csv --dataset dataset.h5 --budget 24 \\
+        --batch 4 --out refine/
 
 Target CSV: a header with units, ``depth_um,pressure_MPa[,sigma_MPa]`` or
 ``depth_m,pressure_Pa[,sigma_Pa]`` (see :mod:`inverse.targets`). Parameter values in ``--fix``
@@ -106,6 +108,52 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--threads", type=integer(1), default=1, help="torch CPU threads")
     a.add_argument("--quiet", action="store_true")
+    f = sub.add_parser("refine", help="spend new DEM runs near the posterior: select, "
+                                      "run, retrain, recalibrate (resumable)")
+    f.add_argument("--model", required=True, help="the initial surrogate (MODEL.pt)")
+    g = f.add_mutually_exclusive_group(required=True)
+    g.add_argument("--target", help="CURVE.csv (units in the header) or RUN.h5")
+    g.add_argument("--target-row", type=integer(0),
+                   help="a dataset row the model never trained on (a synthetic twin whose "
+                        "truth is known)")
+    f.add_argument("--dataset", required=True,
+                   help="DATASET.h5 the model was trained on; its problem is the DEM's")
+    f.add_argument("--budget", type=integer(1), required=True, help="DEM runs in all")
+    f.add_argument("--batch", type=integer(1), required=True, help="DEM runs per round")
+    f.add_argument("--out", required=True, help="output folder (rerun to resume)")
+    f.add_argument("--tol", type=float, default=0.05,
+                   help="stop when no 90 %% interval end moves more than this fraction of "
+                        "the unit range between rounds (default 0.05)")
+    f.add_argument("--dem-seed", type=integer(0),
+                   help="seed of the new DEM runs (default: the dataset's training seed)")
+    f.add_argument("--epochs", type=integer(1),
+                   help="retraining epochs (default: the initial model's)")
+    f.add_argument("--refine-weight", type=integer(1), default=1,
+                   help="copies of each new run in the training split (default 1)")
+    f.add_argument("--candidates", type=integer(1), default=4000,
+                   help="posterior samples the selection chooses among")
+    f.add_argument("--workers", type=integer(0), default=0,
+                   help="DEM runs at a time (0: one per core)")
+    f.add_argument("--threads-per-run", type=integer(1), default=1)
+    f.add_argument("--scheduler", help="address of a running Dask scheduler")
+    f.add_argument("--timeout", type=float, help="seconds per DEM run attempt")
+    f.add_argument("--restarts", type=int, default=DEFAULT_RESTARTS)
+    f.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS)
+    f.add_argument("--walkers", type=int, default=pc.walkers)
+    f.add_argument("--steps", type=int, default=pc.steps)
+    f.add_argument("--burn", type=int, default=pc.burn)
+    f.add_argument("--model-error", type=float, default=0.0,
+                   help="surrogate error sigma of round 0, normalised units (default 0: "
+                        "the model's recorded held-out RMSE); later rounds use the error "
+                        "measured on the new runs")
+    f.add_argument("--correlation-length", type=float, default=None)
+    f.add_argument("--sigma-rel", type=float, default=pc.sigma_rel)
+    f.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE")
+    f.add_argument("--no-distribution", action="store_true",
+                   help="with --target-row: calibrate on the pressure curve only")
+    f.add_argument("--seed", type=int, default=0, help="selection, optimiser and MCMC seed")
+    f.add_argument("--threads", type=integer(1), default=1, help="torch CPU threads")
+    f.add_argument("--quiet", action="store_true")
     return ap
 
 
@@ -250,6 +298,61 @@ def cmd_validate(args) -> int:
     return EXIT_OK
 
 
+def cmd_refine(args) -> int:
+    from inverse.optimise import OptimiserConfig
+    from inverse.posterior import PosteriorConfig
+    from inverse.refine import RefineConfig, refine
+
+    output_path(args.out, "--out", folder=True)
+    for key in ("dataset",):
+        p = Path(getattr(args, key))
+        if not p.is_file():
+            raise ConfigError(f"--{key}", str(p), "an existing file")
+    cfg = RefineConfig(budget=args.budget, batch=args.batch, tol=args.tol,
+                       dem_seed=args.dem_seed, candidates=args.candidates, epochs=args.epochs,
+                       refine_weight=args.refine_weight, seed=args.seed, workers=args.workers,
+                       threads_per_run=args.threads_per_run, scheduler=args.scheduler,
+                       timeout=args.timeout)
+    if not Path(args.model).is_file():
+        raise ConfigError("--model", args.model, "an existing surrogate checkpoint file")
+    state = refine(
+        args.model, args.dataset, args.out, target=args.target, target_row=args.target_row,
+        cfg=cfg, fix=parse_fix(args.fix), use_distribution=not args.no_distribution,
+        optimiser=OptimiserConfig(iterations=args.iterations, restarts=args.restarts,
+                                  seed=args.seed),
+        posterior=PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
+                                  seed=args.seed, sigma_rel=args.sigma_rel,
+                                  model_error_sigma=args.model_error,
+                                  correlation_length=args.correlation_length),
+        progress=not args.quiet)
+    print(format_refinement(state))
+    print(f"wrote {Path(args.out) / 'refine.json'} and {state.get('plot', '')}")
+    return EXIT_OK
+
+
+def format_refinement(state: dict) -> str:
+    """A table of the rounds: runs, surrogate error, mean 90 % width and, per parameter, the
+    interval width (unit range; '*' where a known truth lies outside)."""
+    rounds = state["rounds"]
+    names = list(rounds[0]["posterior"])
+    head = f"{'round':>5s}{'runs':>6s}{'sigma':>8s}{'oos rmse':>9s}{'width':>7s}  " + \
+        "".join(f"{n[:9]:>10s}" for n in names)
+    lines = [head]
+    for r in rounds:
+        e = r.get("error_before_training") or {}
+        oos = f"{e['pressure_rmse_normalised']:.4f}" if e else "-"
+        cells = []
+        for n in names:
+            w = r["posterior"][n]["width_unit"]
+            t = r["truth"].get(n)
+            cells.append(f"{w:>9.3f}{'*' if t and not t['inside_ci90'] else ' '}")
+        lines.append(f"{r['round']:>5d}{r['runs_done']:>6d}{r['model_error_sigma']:>8.4f}"
+                     f"{oos:>9s}{r['mean_width_unit']:>7.3f}  " + "".join(cells))
+    lines.append(f"{state['status']}: {state['stop_reason']} ({state['runs_done']} runs "
+                 f"done of {state['runs_spent']} planned)")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``inverse`` console script; returns the exit code."""
     from calendaring import DatasetError, RunFileError, __version__
@@ -269,7 +372,7 @@ def main(argv=None) -> int:
 
             torch.set_num_threads(args.threads)
         return {"calibrate": cmd_calibrate, "verify": cmd_verify,
-                "validate": cmd_validate}[args.command](args)
+                "validate": cmd_validate, "refine": cmd_refine}[args.command](args)
 
     return run_cli("inverse", handle, tuple(bad), __version__)
 

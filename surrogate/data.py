@@ -23,6 +23,8 @@ import torch
 from calendaring import ConfigError, Dataset
 
 TRAIN_ROLES_DEFAULT = ("train",)
+# refine: runs near a calibration's posterior, added by `inverse refine`
+TRAINABLE_ROLES = ("train", "replicate", "refine")
 
 
 @dataclass(frozen=True, slots=True)
@@ -75,11 +77,11 @@ def trainable_rows(ds: Dataset, roles: tuple[str, ...] = TRAIN_ROLES_DEFAULT) ->
     """Indices of the rows that may be split for training (``holdout`` never)."""
     roles = tuple(roles)
     if "holdout" in roles:
-        raise ConfigError("train_roles", roles, "a subset of ('train', 'replicate'); "
+        raise ConfigError("train_roles", roles, f"a subset of {TRAINABLE_ROLES}; "
                                                 "holdout rows are never trained on")
     for r in roles:
-        if r not in ("train", "replicate"):
-            raise ConfigError("train_roles", r, "'train' or 'replicate'")
+        if r not in TRAINABLE_ROLES:
+            raise ConfigError("train_roles", r, f"one of {TRAINABLE_ROLES}")
     idx = np.nonzero(np.isin(ds.role, roles))[0]
     if len(idx) < 3:
         raise ConfigError("dataset rows", f"{len(idx)} rows with role in {roles}",
@@ -146,5 +148,5 @@ class SurrogateDataset(torch.utils.data.Dataset):
         return self.u, self.p, self.d, self.w
 
 
-__all__ = ["TRAIN_ROLES_DEFAULT", "Normalisation", "SurrogateDataset", "has_events",
-           "split_indices", "trainable_rows"]
+__all__ = ["TRAINABLE_ROLES", "TRAIN_ROLES_DEFAULT", "Normalisation", "SurrogateDataset",
+           "has_events", "split_indices", "trainable_rows"]

@@ -706,9 +706,21 @@ def load_config_dict(data: dict, base: SimConfig | None = None) -> SimConfig:
     return _from_dict(SimConfig, _merge(base_dict, data))
 
 
+CONFIG_SUFFIXES = (".toml", ".json")
+
+
 def load_config(path: str | Path, base: SimConfig | None = None) -> SimConfig:
-    """Read a TOML file strictly (see :func:`load_config_dict`)."""
+    """Read a TOML file, or a JSON one (e.g. a run file's or a dataset's ``config_json``,
+    to rerun exactly that problem), strictly (see :func:`load_config_dict`)."""
     path = Path(path)
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(path.read_text())
+        except (ValueError, UnicodeDecodeError) as err:
+            raise ConfigError(str(path), "<file>", f"valid JSON ({err})") from None
+        if not isinstance(data, dict):
+            raise ConfigError(str(path), "<file>", "a JSON object of config tables")
+        return load_config_dict(data, base)
     try:
         with path.open("rb") as fh:
             data = tomllib.load(fh)

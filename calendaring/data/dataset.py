@@ -35,6 +35,7 @@ distribution/load_edges         N       (31,) peak-load bin edges
 distribution/diameter_edges     m       (31,) parent-diameter bin edges
 distribution/n_events           1       (n,) breakage events binned
 runs/run_id, role, file         -       (n,) strings; role: train | replicate | holdout
+                                        | refine (added by ``inverse refine``)
 runs/design_index, seed, group  1       (n,); group: replicate group (same parameters), -1
 runs/wall_time                  s       (n,) wall time of the run
 ==============================  ======  ============================================
@@ -71,7 +72,7 @@ from calendaring.data.params import PAPER_SPACE, ParameterSpace
 
 FORMAT = "calendaring-dataset"
 SCHEMA_VERSION = 1
-ROLES = ("train", "replicate", "holdout")
+ROLES = ("train", "replicate", "holdout", "refine")
 KL_FLOOR = 1e-8
 
 
@@ -406,7 +407,7 @@ def write_dataset(path: str | Path, ds: Dataset) -> Path:
             _put(g, "n_events", ds.n_events, "1", "breakage events binned")
             g = f.create_group("runs")
             _put(g, "run_id", ds.run_id, "-", "sweep run id")
-            _put(g, "role", ds.role, "-", "train | replicate | holdout")
+            _put(g, "role", ds.role, "-", "train | replicate | holdout | refine")
             _put(g, "file", ds.files, "-", "run file name")
             _put(g, "design_index", ds.design_index, "1", "row of the design")
             _put(g, "seed", ds.seed, "1", "random seed of the run")
@@ -547,39 +548,27 @@ class _Source:
                        rec.pressure["depth"], rec.pressure["value"], rec.stroke, n)[1])
 
 
-def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int = 17,
-                  savgol_order: int = 3, bins: int = 30, load_scale: str = "log",
-                  load_range: tuple[float, float] | None = None,
-                  diameter_range: tuple[float, float] | None = None,
-                  space: ParameterSpace = PAPER_SPACE, progress: bool = True,
-                  command: str = "") -> Dataset:
-    """Consolidate the run files of a sweep folder (``runs/*.h5``, or ``*.h5`` directly in
-    ``folder``) into a :class:`Dataset`; a run without a usable run file is taken from its
-    digest ``digests/<run>.h5`` (:mod:`calendaring.data.digest`) when there is one. Roles and
-    replicate groups come from the sweep's manifest when there is one (otherwise every run
-    is ``train``). Corrupt, incomplete, no-breakage or foreign runs are listed in
-    ``skipped`` with the reason.
-    """
+def _read_rows(folder: Path, n_points: int, space: ParameterSpace, progress: bool,
+               names: Iterable[str] | None = None, key0: str | None = None
+               ) -> tuple[list[dict], list, object]:
+    """Read the runs of a sweep ``folder`` (``names``, default all) as dataset rows: a
+    run file, or its digest when the file is not usable. Returns (rows, skipped, first
+    record). A run of another problem than ``key0`` (default: the first usable run's) is
+    skipped with the reason."""
     from calendaring.data.digest import digest_path, run_files_dir
     from calendaring.process.runfile import RunFileError
 
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise ConfigError("RUNS", str(folder), "an existing folder of run files")
-    if n_points < savgol_window:
-        raise ConfigError("n_points", n_points, f">= savgol_window = {savgol_window}")
-    if bins < 2:
-        raise ConfigError("bins", bins, ">= 2")
-    smooth(np.zeros(savgol_window + 1), savgol_window, savgol_order)  # validates the window
     run_dir = run_files_dir(folder)
-    names = sorted({p.stem for p in run_dir.glob("*.h5")}
-                   | {p.stem for p in (folder / "digests").glob("*.h5")})
+    if names is None:
+        names = sorted({p.stem for p in run_dir.glob("*.h5")}
+                       | {p.stem for p in (folder / "digests").glob("*.h5")})
+    names = list(names)
     manifest = {}
     if (folder / "manifest.json").exists():
         from calendaring.data.sweep import read_manifest
 
         manifest = read_manifest(folder)
-    rows, skipped, key0, rec0 = [], [], None, None
+    rows, skipped, rec0 = [], [], None
     t0 = time.perf_counter()
     for k, name in enumerate(names):
         path = run_dir / f"{name}.h5"
@@ -598,7 +587,8 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
             if key0 is None:
                 key0, rec0 = key, rec
             elif key != key0:
-                why = f"a different problem from {rec0.name}.h5 (configuration differs " \
+                ref = f"{rec0.name}.h5" if rec0 is not None else "the dataset"
+                why = f"a different problem from {ref} (configuration differs " \
                       "beyond the breakage parameters, seed and packing)"
         if why is None:
             try:
@@ -608,56 +598,170 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
         if why:
             skipped.append([path.name, why])
             continue
+        rec0 = rec0 or rec
         e = manifest.get(name)
         rows.append({
             "params": [float(getattr(rec.config.breakage, n)) for n in space.names],
             "raw": p, "load": rec.peak_load, "diameter": rec.diameter,
             "run_id": name, "file": path.name, "role": e.role if e else "train",
             "design_index": e.index if e else -1, "seed": rec.seed,
-            "group": e.group if e else "", "wall": rec.wall_seconds, "kind": rec.kind})
+            "group": e.group if e else "", "wall": rec.wall_seconds, "kind": rec.kind,
+            "stroke": rec.stroke})
         if progress and (k == len(names) - 1 or k % 25 == 0):
             print(f"[dataset] {k + 1}/{len(names)} runs read "
                   f"({time.perf_counter() - t0:.0f} s)",
                   file=sys.stderr, flush=True)
+    if rows:
+        bad = [r["run_id"] for r in rows
+               if np.any(np.asarray(r["params"]) < space.lower - 1e-9 * (space.upper
+                                                                          - space.lower))
+               or np.any(np.asarray(r["params"]) > space.upper + 1e-9 * (space.upper
+                                                                          - space.lower))]
+        if bad:
+            raise DatasetError(folder, f"runs with parameters outside the space bounds: "
+                                       f"{bad[:5]}")
+    return rows, skipped, rec0
+
+
+def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int = 17,
+                  savgol_order: int = 3, bins: int = 30, load_scale: str = "log",
+                  load_range: tuple[float, float] | None = None,
+                  diameter_range: tuple[float, float] | None = None,
+                  space: ParameterSpace = PAPER_SPACE, progress: bool = True,
+                  command: str = "") -> Dataset:
+    """Consolidate the run files of a sweep folder (``runs/*.h5``, or ``*.h5`` directly in
+    ``folder``) into a :class:`Dataset`; a run without a usable run file is taken from its
+    digest ``digests/<run>.h5`` (:mod:`calendaring.data.digest`) when there is one. Roles and
+    replicate groups come from the sweep's manifest when there is one (otherwise every run
+    is ``train``). Corrupt, incomplete, no-breakage or foreign runs are listed in
+    ``skipped`` with the reason.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError("RUNS", str(folder), "an existing folder of run files")
+    if n_points < savgol_window:
+        raise ConfigError("n_points", n_points, f">= savgol_window = {savgol_window}")
+    if bins < 2:
+        raise ConfigError("bins", bins, ">= 2")
+    smooth(np.zeros(savgol_window + 1), savgol_window, savgol_order)  # validates the window
+    rows, skipped, rec0 = _read_rows(folder, n_points, space, progress)
     if not rows:
         raise DatasetError(folder, f"no usable run files ({len(skipped)} skipped: "
                                    f"{skipped[:3]})")
-    params = np.array([r["params"] for r in rows])
-    bad = [r["run_id"] for r, x in zip(rows, params, strict=True)
-           if np.any(x < space.lower - 1e-9 * (space.upper - space.lower))
-           or np.any(x > space.upper + 1e-9 * (space.upper - space.lower))]
-    if bad:
-        raise DatasetError(folder, f"runs with parameters outside the space bounds: {bad[:5]}")
     le, de = histogram_edges([r["load"] for r in rows], [r["diameter"] for r in rows], bins,
                              load_scale, load_range, diameter_range)
-    hist = np.stack([bin_events(r["load"], r["diameter"], le, de) for r in rows])
     raw = np.stack([r["raw"] for r in rows])
     sm = smooth(raw, savgol_window, savgol_order)
     c = np.cbrt(sm)
-    groups = sorted({r["group"] for r in rows if r["group"]})
-    gid = {g: i for i, g in enumerate(groups)}
     edges = np.linspace(0.0, float(rec0.stroke), n_points + 1)
     from calendaring.core.config import config_json
 
+    n_names = len(rows) + len(skipped)
     return Dataset(
-        space=space, params=params, depth=0.5 * (edges[1:] + edges[:-1]), pressure_raw=raw,
-        pressure=sm, histogram=hist, load_edges=le, diameter_edges=de,
-        n_events=np.array([len(r["load"]) for r in rows]),
-        run_id=np.array([r["run_id"] for r in rows]), role=np.array([r["role"] for r in rows]),
-        design_index=np.array([r["design_index"] for r in rows]),
-        seed=np.array([r["seed"] for r in rows]),
-        group=np.array([gid.get(r["group"], -1) for r in rows]),
-        wall_time=np.array([r["wall"] for r in rows]), stroke=float(rec0.stroke),
+        space=space, depth=0.5 * (edges[1:] + edges[:-1]), pressure_raw=raw,
+        pressure=sm, load_edges=le, diameter_edges=de, stroke=float(rec0.stroke),
         cbrt_min=float(c.min()), cbrt_max=float(c.max()), savgol_window=savgol_window,
         savgol_order=savgol_order, load_scale=load_scale,
-        files=np.array([r["file"] for r in rows]), base_config=config_json(rec0.config),
-        skipped=skipped,
+        base_config=config_json(rec0.config), skipped=skipped,
+        **_row_arrays(rows, le, de),
         provenance={"runs_folder": str(folder.resolve()), "command": command,
                     "software_version": __version__, "built": datetime.datetime.now(
                         datetime.UTC).isoformat(timespec="seconds"),
-                    "run_files": len(names), "used": len(rows), "skipped": len(skipped),
+                    "run_files": n_names, "used": len(rows), "skipped": len(skipped),
                     "from_digests": sum(r["kind"] == "digest" for r in rows),
-                    "preset": rec0.preset, "group_names": groups})
+                    "preset": rec0.preset,
+                    "group_names": sorted({r["group"] for r in rows if r["group"]})})
+
+
+def _row_arrays(rows: list[dict], load_edges, diameter_edges,
+                group_names: list[str] | None = None) -> dict:
+    """The per-row arrays of a :class:`Dataset` from rows of :func:`_read_rows`; replicate
+    groups are numbered in the order of ``group_names`` (new names appended, sorted)."""
+    names = list(group_names or [])
+    names += sorted({r["group"] for r in rows if r["group"]} - set(names))
+    gid = {g: i for i, g in enumerate(names)}
+    return {
+        "params": np.array([r["params"] for r in rows], float),
+        "histogram": np.stack([bin_events(r["load"], r["diameter"], load_edges,
+                                          diameter_edges) for r in rows]),
+        "n_events": np.array([len(r["load"]) for r in rows]),
+        "run_id": np.array([r["run_id"] for r in rows]),
+        "role": np.array([r["role"] for r in rows]),
+        "design_index": np.array([r["design_index"] for r in rows]),
+        "seed": np.array([r["seed"] for r in rows]),
+        "group": np.array([gid.get(r["group"], -1) for r in rows]),
+        "wall_time": np.array([r["wall"] for r in rows]),
+        "files": np.array([r["file"] for r in rows])}
+
+
+def dataset_config(ds: Dataset):
+    """The :class:`~calendaring.core.config.SimConfig` of the dataset's problem (its first
+    run's configuration read with today's defaults for keys added since), with the packing
+    path cleared and breakage on (every row is a breakage run): the base of new runs of the
+    same problem (:func:`append_runs`)."""
+    from calendaring.core.config import load_config_dict, with_overrides
+
+    try:
+        cfg = load_config_dict(json.loads(ds.base_config))
+    except (ValueError, TypeError) as err:
+        raise DatasetError(ds.path or "<memory>", f"unusable base_config ({err})") from None
+    return with_overrides(cfg, {"electrode.packing": "", "breakage.enabled": True})
+
+
+def append_runs(ds: Dataset, folder: str | Path, names: Iterable[str] | None = None,
+                role: str | None = None, progress: bool = False) -> Dataset:
+    """``ds`` with the runs of the sweep ``folder`` (``names``, default all) appended as new
+    rows, processed exactly as ``ds`` was: the same depths, smoothing, bin edges (events
+    outside them fall into the end bins, as :func:`bin_events` does) and parameter space.
+    ``role`` replaces the manifest's role of the new rows. The normalisation statistics
+    (``cbrt_min``/``cbrt_max``) are recomputed over all rows.
+
+    Raises:
+        DatasetError: a run of another problem than ``ds`` (the configuration beyond the
+            breakage parameters, the seed and the packing differs), another stroke, a run
+            id already in ``ds``, or no usable run.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError("RUNS", str(folder), "an existing folder of run files")
+    if role is not None and role not in ROLES:
+        raise ConfigError("role", role, f"one of {ROLES}")
+    key0 = _problem_key(dataset_config(ds))
+    rows, skipped, _ = _read_rows(folder, len(ds.depth), ds.space, progress, names, key0)
+    foreign = [s for s in skipped if "different problem" in s[1]]
+    if foreign:
+        raise DatasetError(folder, f"{len(foreign)} run(s) of another problem than the "
+                                   f"dataset, e.g. {foreign[0][0]}: {foreign[0][1]}")
+    if not rows:
+        raise DatasetError(folder, f"no usable runs to append ({len(skipped)} skipped: "
+                                   f"{skipped[:3]})")
+    stroke = [r["run_id"] for r in rows if abs(r["stroke"] - ds.stroke) > 1e-9 * ds.stroke]
+    if stroke:
+        raise DatasetError(folder, f"runs with another stroke than the dataset's "
+                                   f"{ds.stroke:.4g} m: {stroke[:3]}")
+    dup = sorted(set(ds.run_id) & {r["run_id"] for r in rows})
+    if dup:
+        raise DatasetError(folder, f"runs already in the dataset: {dup[:3]}")
+    if role is not None:
+        for r in rows:
+            r["role"] = role
+    new = _row_arrays(rows, ds.load_edges, ds.diameter_edges,
+                      list(ds.provenance.get("group_names", [])))
+    raw = np.stack([r["raw"] for r in rows])
+    new["pressure_raw"] = raw
+    new["pressure"] = smooth(raw, ds.savgol_window, ds.savgol_order)
+    old = {k: getattr(ds, k) for k in new}
+    merged = {k: np.concatenate([np.asarray(old[k]), np.asarray(v)]) for k, v in new.items()}
+    c = np.cbrt(merged["pressure"])
+    prov = dict(ds.provenance)
+    prov.setdefault("appended", []).append({
+        "runs_folder": str(folder.resolve()), "rows": len(rows), "skipped": len(skipped),
+        "role": role or "from the manifest",
+        "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")})
+    prov["group_names"] = list(ds.provenance.get("group_names", [])) + sorted(
+        {r["group"] for r in rows if r["group"]} - set(ds.provenance.get("group_names", [])))
+    return replace(ds, **merged, cbrt_min=float(c.min()), cbrt_max=float(c.max()),
+                   skipped=list(ds.skipped) + skipped, provenance=prov, path=None)
 
 
 def provenance_report(folder: str | Path, ds: Dataset) -> dict:
@@ -699,6 +803,26 @@ def provenance_report(folder: str | Path, ds: Dataset) -> dict:
 
 
 # ---------------------------------------------------------------------- synthetic data
+def synthetic_response(u: np.ndarray, depth: np.ndarray, stroke: float,
+                       load_edges: np.ndarray, diameter_edges: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The analytic stand-in of :func:`synthetic_dataset` at unit parameters ``u`` (n, 8):
+    pressure ``(n, len(depth))`` [Pa] and histograms ``(n, L, D)`` (not physics)."""
+    u = np.atleast_2d(np.asarray(u, float))
+    z = np.asarray(depth, float)
+    p0 = 2e6 * (1 + u[:, 1] + 0.5 * u[:, 2] ** 2 + 0.2 * np.sin(3 * u[:, 3]))
+    k = 3.0 + 1.5 * u[:, 3] - 0.8 * u[:, 4] + 0.3 * u[:, 0] * u[:, 5]
+    p = p0[:, None] * np.expm1(k[:, None] * z[None, :] / stroke)
+    le, de = np.asarray(load_edges, float), np.asarray(diameter_edges, float)
+    lc, dc = np.log(np.sqrt(le[:-1] * le[1:])), 0.5 * (de[:-1] + de[1:])
+    lo, hi = np.log(le[0]), np.log(le[-1])
+    mu_l = lo + (hi - lo) * (0.3 + 0.4 * u[:, 2] * u[:, 1])
+    mu_d = 6e-6 + 6e-6 * u[:, 3]
+    h = np.exp(-0.5 * ((lc[None, :, None] - mu_l[:, None, None]) / 0.8) ** 2
+               - 0.5 * ((dc[None, None, :] - mu_d[:, None, None]) / 2e-6) ** 2)
+    return p, h / h.sum(axis=(1, 2), keepdims=True)
+
+
 def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int = 30,
                       space: ParameterSpace = PAPER_SPACE, replicate_groups: int = 0,
                       replicates: int = 0, noise: float = 0.0, stroke: float = 19.5e-6
@@ -721,19 +845,11 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
     m = len(u)
     edges = np.linspace(0, stroke, n_points + 1)
     z = 0.5 * (edges[1:] + edges[:-1])
-    p0 = 2e6 * (1 + u[:, 1] + 0.5 * u[:, 2] ** 2 + 0.2 * np.sin(3 * u[:, 3]))
-    k = 3.0 + 1.5 * u[:, 3] - 0.8 * u[:, 4] + 0.3 * u[:, 0] * u[:, 5]
-    p = p0[:, None] * np.expm1(k[:, None] * z[None, :] / stroke)
-    if noise:
-        p = p * (1 + noise * rng.standard_normal((m, 1)))
     le = np.geomspace(1e-3, 1.0, bins + 1)
     de = np.linspace(4e-6, 16e-6, bins + 1)
-    lc, dc = np.log(np.sqrt(le[:-1] * le[1:])), 0.5 * (de[:-1] + de[1:])
-    mu_l = np.log(1e-3) + (np.log(1.0) - np.log(1e-3)) * (0.3 + 0.4 * u[:, 2] * u[:, 1])
-    mu_d = 6e-6 + 6e-6 * u[:, 3]
-    h = np.exp(-0.5 * ((lc[None, :, None] - mu_l[:, None, None]) / 0.8) ** 2
-               - 0.5 * ((dc[None, None, :] - mu_d[:, None, None]) / 2e-6) ** 2)
-    h /= h.sum(axis=(1, 2), keepdims=True)
+    p, h = synthetic_response(u, z, stroke, le, de)
+    if noise:
+        p = p * (1 + noise * rng.standard_normal((m, 1)))
     x = space.from_unit(u)
     c = np.cbrt(p)
     return Dataset(space=space, params=x, depth=z, pressure_raw=p, pressure=p, histogram=h,
@@ -745,6 +861,8 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 
 
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
-           "bin_centres", "bin_events", "build_dataset", "centroids", "histogram_edges",
+           "append_runs", "bin_centres", "bin_events", "build_dataset", "centroids",
+           "dataset_config", "histogram_edges",
            "kl_divergence", "noise_floor", "provenance_report", "read_dataset",
-           "resample_pressure", "smooth", "synthetic_dataset", "write_dataset"]
+           "resample_pressure", "smooth", "synthetic_dataset", "synthetic_response",
+           "write_dataset"]

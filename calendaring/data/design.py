@@ -94,8 +94,10 @@ def design_report(x: np.ndarray, space: ParameterSpace = PAPER_SPACE) -> dict:
     u = space.to_unit(np.asarray(x, float))
     out = {"n": len(u), "names": space.names}
     if len(u) >= 3:
-        r = np.corrcoef(u, rowvar=False)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a held (constant) column
+            r = np.corrcoef(u, rowvar=False)
         off = np.abs(r - np.eye(len(r)))
+    if len(u) >= 3 and np.isfinite(off).any():
         i, j = np.unravel_index(np.nanargmax(off), off.shape)
         out.update(pearson=r.tolist(), max_abs_r=float(off[i, j]),
                    max_pair=[space.names[i], space.names[j]])

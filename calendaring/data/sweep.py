@@ -74,7 +74,7 @@ from calendaring.process.runfile import RunRecord, previous_checkpoint
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "calendaring-sweep"
-ROLES = ("train", "replicate", "holdout")
+ROLES = ("train", "replicate", "holdout", "refine")  # refine: added by `inverse refine`
 STATUSES = ("pending", "running", "done", "failed")
 
 
@@ -353,11 +353,12 @@ class SweepOptions:
     progress: bool = True
 
 
-def sweep(opt: SweepOptions, task=None) -> dict[str, RunEntry]:
+def sweep(opt: SweepOptions, task=None, pack=None) -> dict[str, RunEntry]:
     """Plan (or extend) the sweep in ``opt.out`` and run what is not done yet.
 
-    ``task`` replaces :func:`run_task` (same signature; tests inject failures with it).
-    Returns the manifest entries of the whole folder.
+    ``task`` replaces :func:`run_task` and ``pack`` :func:`pack_task` (same signatures;
+    tests inject failures and stand-in runs with them). Returns the manifest entries of the
+    whole folder.
     """
     from calendaring.process.run import Progress
 
@@ -394,7 +395,7 @@ def sweep(opt: SweepOptions, task=None) -> dict[str, RunEntry]:
              f"{len(planned) - n_done - len(todo)} failed {opt.max_attempts} times; "
              f"design max |r| = {rep['max_abs_r'] if rep['max_abs_r'] is not None else 'n/a'}")
         if todo:
-            _execute(opt, out, runs, todo, task, Progress)
+            _execute(opt, out, runs, todo, task, pack or pack_task, Progress)
         write_manifest(out, runs)
     return runs
 
@@ -404,7 +405,7 @@ def _log(msg: str) -> None:
 
 
 def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list[RunEntry],
-             task, Progress) -> None:
+             task, pack, Progress) -> None:
     from dask.distributed import Client, LocalCluster, as_completed
 
     if opt.scheduler:
@@ -422,7 +423,7 @@ def _execute(opt: SweepOptions, out: Path, runs: dict[str, RunEntry], todo: list
         for e in todo:
             if e.packing not in packs:
                 packs[e.packing] = client.submit(
-                    pack_task, str(out), e.source, e.overrides, e.seed, e.packing,
+                    pack, str(out), e.source, e.overrides, e.seed, e.packing,
                     opt.threads_per_run, key=f"pack-{e.packing}", pure=False,
                     resources=resources)
         futures = {}

@@ -229,3 +229,20 @@ def test_plate_table_stiffness_partition():
 def test_damping_ratio(e, beta):
     """beta_hat = -ln e / sqrt(ln^2 e + pi^2): 0.4037 for e = 0.25 (spec 2.4), 0 for e = 1."""
     np.testing.assert_allclose(damping_ratio(e), beta, rtol=2e-4, atol=0.0)
+
+
+def test_json_config_round_trip(tmp_path):
+    """A run file's or dataset's configuration JSON reruns exactly that problem."""
+    from calendaring.core.config import config_json
+
+    cfg = with_overrides(SimConfig(), {"numerics.seed": 3, "domain.cell_x": 40e-6})
+    path = tmp_path / "run.json"
+    path.write_text(config_json(cfg))
+    back = load_config(path)
+    assert back == cfg and config_hash(back) == config_hash(cfg)
+    path.write_text("[1, 2]")
+    with pytest.raises(ConfigError, match="JSON object"):
+        load_config(path)
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="valid JSON"):
+        load_config(path)

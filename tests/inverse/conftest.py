@@ -14,11 +14,13 @@ def _one_thread():
     torch.set_num_threads(1)
 
 
-def write_fake_run(path, depth, pressure, loads=(), diameters=(), preset="tiny", seed=0):
-    """A schema-valid run file with the given top-plate trace and breakage events (no DEM)."""
+def write_fake_run(path, depth, pressure, loads=(), diameters=(), preset="tiny", seed=0,
+                   cfg=None, info=None):
+    """A schema-valid run file with the given top-plate trace and breakage events (no DEM),
+    with the configuration ``cfg`` (default: the preset's)."""
     from calendaring.core.config import load_preset
 
-    cfg = load_preset(preset)
+    cfg = cfg if cfg is not None else load_preset(preset)
     n = len(depth)
     k = len(loads)
     brk = {name: np.zeros(k) for name in BREAKAGE}
@@ -27,7 +29,7 @@ def write_fake_run(path, depth, pressure, loads=(), diameters=(), preset="tiny",
     brk["fragments"] = {name: np.zeros(0) for name in FRAGMENTS}
     series = {name: np.zeros(3) for name in SERIES_UNITS}
     return write_run(path, {
-        "config": cfg, "preset": preset, "seed": seed, "info": {"fake": True},
+        "config": cfg, "preset": preset, "seed": seed, "info": info or {"fake": True},
         "breakage_model": "tavares_ufrj", "breakage": brk,
         "pressure": {"step": np.arange(n), "time": np.arange(n) * 1e-9,
                      "depth": np.asarray(depth, float), "value": np.asarray(pressure, float),

@@ -1,0 +1,300 @@
+"""`inverse refine`: posterior-guided refinement, end to end on an analytic stand-in.
+
+The "DEM" here is :func:`calendaring.data.dataset.synthetic_response` written as run files
+by an injected sweep task (no packing, no Taichi), so the whole loop runs in seconds: the
+selection from the posterior, the sweep's manifest and resume, the dataset with role
+``refine``, the out-of-sample error measured before training, the retraining and the
+recalibration with that error in the likelihood.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+
+import numpy as np
+import pytest
+
+from calendaring import ConfigError
+from calendaring.core.config import config_json, load_preset
+from calendaring.data.dataset import (
+    DatasetError,
+    append_runs,
+    read_dataset,
+    synthetic_dataset,
+    synthetic_response,
+    write_dataset,
+)
+from calendaring.data.design import read_design_csv
+from calendaring.data.params import PAPER_SPACE
+from calendaring.data.sweep import base_config, run_config
+from inverse.optimise import OptimiserConfig
+from inverse.posterior import PosteriorConfig
+from inverse.refine import RefineConfig, Refinement, interval_change, select_points
+from tests.inverse.conftest import write_fake_run
+
+STROKE = 19.5e-6
+N_EVENTS = 600
+CALLS: list[str] = []
+_LOCK = threading.Lock()
+
+
+def _fake_pack(folder, source, overrides, seed, key, threads):
+    return "no-packing-needed.csv"
+
+
+def _fake_task(folder, entry, packing, threads, timeout):
+    """The analytic stand-in as a run file of the entry's exact configuration."""
+    from pathlib import Path
+
+    with _LOCK:
+        CALLS.append(entry["run_id"])
+    cfg = run_config(base_config(entry["source"], entry["overrides"]), entry["params"],
+                     entry["seed"])
+    x = np.array([[entry["params"][n] for n in PAPER_SPACE.names]])
+    depth = np.linspace(0.0, STROKE, 801)
+    le, de = np.geomspace(1e-3, 1.0, 31), np.linspace(4e-6, 16e-6, 31)
+    p, h = synthetic_response(PAPER_SPACE.to_unit(x), depth, STROKE, le, de)
+    rng = np.random.default_rng(abs(hash(entry["run_id"])) % 2**32)
+    cells = rng.choice(h[0].size, size=N_EVENTS, p=h[0].ravel())
+    li, di = np.unravel_index(cells, h[0].shape)
+    loads = np.sqrt(le[li] * le[li + 1])
+    dias = 0.5 * (de[di] + de[di + 1])
+    write_fake_run(Path(folder) / entry["file"], depth, p[0], loads, dias, cfg=cfg,
+                   seed=entry["seed"], info={"final_depth": STROKE, "wall_seconds": 0.01})
+    return {"status": "done", "wall_time": 0.01, "error": "", "reused": False}
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    """A synthetic dataset with the sweep preset's problem, 4 held-out rows, and a 2-member
+    surrogate trained on its training rows."""
+    import torch
+
+    from surrogate import SurrogateModel, TrainConfig, train_ensemble
+    from surrogate.evaluate import model_metrics
+
+    torch.set_num_threads(1)
+    tmp = tmp_path_factory.mktemp("refine")
+    ds = synthetic_dataset(44, seed=3, stroke=STROKE)
+    role = ds.role.copy()
+    role[-4:] = "holdout"
+    cfg = load_preset("sweep")
+    assert cfg.protocol.stroke == STROKE
+    from dataclasses import replace
+
+    ds = replace(ds, role=role, base_config=config_json(cfg))
+    ds_path = write_dataset(tmp / "ds.h5", ds)
+    ds = read_dataset(ds_path)
+    res = train_ensemble(ds, 2, TrainConfig(epochs=12, seed=0), progress=False)
+    model = SurrogateModel.from_training(res, ds)
+    model.info["metrics"] = {"test": model_metrics(model, ds, res[0].rows["test"])}
+    model_path = model.save(tmp / "model.pt")
+    return tmp, ds_path, model_path
+
+
+def _refinement(setup, out, **kw):
+    _tmp, ds_path, model_path = setup
+    cfg = kw.pop("cfg", RefineConfig(budget=4, batch=2, tol=1e-6, epochs=6, workers=1,
+                                     candidates=500))
+    return Refinement(model_path, ds_path, out, target_row=kw.pop("row", 41), cfg=cfg,
+                      optimiser=OptimiserConfig(iterations=40, restarts=2),
+                      posterior=PosteriorConfig(walkers=20, steps=160, burn=80),
+                      progress=False, task=_fake_task, pack=_fake_pack, **kw)
+
+
+@pytest.fixture(scope="module")
+def refined(setup):
+    tmp = setup[0]
+    CALLS.clear()
+    state = _refinement(setup, tmp / "out").run()
+    return tmp / "out", state, list(CALLS)
+
+
+def test_refinement_spends_the_budget_in_rounds_and_records_them(refined, setup):
+    out, state, calls = refined
+    assert state["status"] == "done" and "budget spent" in state["stop_reason"]
+    assert [r["round"] for r in state["rounds"]] == [0, 1, 2]
+    assert state["runs_done"] == state["runs_spent"] == 4 and len(calls) == 4
+    assert (out / "refine.png").is_file() and (out / "base.json").is_file()
+    ds2 = read_dataset(out / "rounds" / "r02" / "dataset.h5")
+    ds0 = read_dataset(setup[1])
+    ref = ds2.role == "refine"
+    assert ref.sum() == 4 and len(ds2) == len(ds0) + 4
+    np.testing.assert_array_equal(ds2.params[~ref], ds0.params)
+    pts = np.vstack([read_design_csv(out / "rounds" / f"r0{r}" / f"refine-r0{r}.csv")
+                     for r in (1, 2)])
+    np.testing.assert_allclose(ds2.params[ref], pts, rtol=1e-12)
+    # the first point of round 1 is round 0's optimum (its free coordinates)
+    r0 = state["rounds"][0]
+    np.testing.assert_allclose(PAPER_SPACE.to_unit(pts[:1])[0], r0["optimum_unit"], atol=1e-9)
+    # a twin: the truth is known and recorded in every round
+    truth = ds0.params[41]
+    for r in state["rounds"]:
+        assert set(r["truth"]) == set(PAPER_SPACE.names)
+        np.testing.assert_allclose([r["truth"][n]["truth"] for n in PAPER_SPACE.names], truth)
+
+
+def test_the_error_is_measured_before_training_and_enters_the_likelihood(refined, setup):
+    """Round r's error is that of round r-1's model on round r's new runs; the likelihood of
+    round r uses the root mean square of every such per-run error so far."""
+    import surrogate
+
+    out, state, _ = refined
+    ds2 = read_dataset(out / "rounds" / "r02" / "dataset.h5")
+    models = [surrogate.load(setup[2]), surrogate.load(out / "rounds" / "r01" / "model.pt")]
+    sq = []
+    for r in (1, 2):
+        err = json.loads((out / "rounds" / f"r0{r}" / "error.json").read_text())
+        ids = [x["run_id"] for x in err["rows"]]
+        rows = np.nonzero(np.isin(ds2.run_id, ids))[0]
+        m = models[r - 1]
+        pred = m.predict(ds2.params[rows])
+        rmse = np.sqrt(np.mean((pred.pressure_normalised
+                                - m.normalise_pressure(ds2.pressure[rows])) ** 2, axis=1))
+        by_id = dict(zip(ds2.run_id[rows], rmse, strict=True))
+        for x in err["rows"]:
+            assert x["pressure_rmse_normalised"] == pytest.approx(by_id[x["run_id"]],
+                                                                  rel=1e-5)
+        sq += [v**2 for v in rmse]
+        sigma = float(np.sqrt(np.mean(sq)))
+        rec = state["rounds"][r]
+        assert rec["model_error_sigma"] == pytest.approx(sigma, rel=1e-5)
+        cal = json.loads((out / "rounds" / f"r0{r}" / "calibration.json").read_text())
+        assert cal["posterior"]["config"]["model_error_sigma"] == pytest.approx(sigma,
+                                                                                rel=1e-5)
+    # round 0 used the model's recorded held-out RMSE
+    m0 = models[0]
+    s0 = np.sqrt(m0.info["metrics"]["test"]["pressure"]["pressure_mse_normalised"])
+    assert state["rounds"][0]["model_error_sigma"] == pytest.approx(s0)
+    # the retrained model has trained on the refine rows (they are in its training split)
+    m1 = models[1]
+    assert set(ds2.run_id[ds2.role == "refine"][:2]) <= set(m1.info["split"]["train"])
+
+
+def test_a_rerun_resumes_without_redoing_finished_steps(refined, setup):
+    out, state, _ = refined
+    CALLS.clear()
+    again = _refinement(setup, out).run()
+    assert CALLS == [] and again["rounds"] == state["rounds"]
+    # a kill after round 2's runs: its model, calibration and record are redone, no DEM run
+    d = out / "rounds" / "r02"
+    for name in ("model.pt", "calibration.json", "posterior.npz", "round.json"):
+        (d / name).unlink()
+    again = _refinement(setup, out).run()
+    assert CALLS == [] and (d / "model.pt").is_file()
+    assert again["rounds"][2]["points"] == state["rounds"][2]["points"]
+    assert again["runs_done"] == 4
+
+
+def test_a_larger_budget_goes_on_and_another_request_is_refused(refined, setup, tmp_path):
+    out, _, _ = refined
+    with pytest.raises(ConfigError, match="refine_weight"):
+        _refinement(setup, out, cfg=RefineConfig(budget=4, batch=2, tol=1e-6, epochs=6,
+                                                 workers=1, candidates=500,
+                                                 refine_weight=3)).run()
+    with pytest.raises(ConfigError, match="target"):
+        _refinement(setup, out, row=40).run()
+    copy = tmp_path / "more"
+    shutil.copytree(out, copy)
+    CALLS.clear()
+    more = _refinement(setup, copy, cfg=RefineConfig(budget=6, batch=2, tol=1e-6, epochs=6,
+                                                     workers=1, candidates=500)).run()
+    assert len(CALLS) == 2 and [r["round"] for r in more["rounds"]] == [0, 1, 2, 3]
+
+
+def test_a_twin_must_be_a_row_the_model_never_trained_on(setup, tmp_path):
+    with pytest.raises(ConfigError, match="never trained on"):
+        _refinement(setup, tmp_path / "x", row=0)
+
+
+def test_select_points_spreads_out_and_avoids_earlier_points():
+    rng = np.random.default_rng(0)
+    samples = np.column_stack([0.5 + 0.01 * rng.standard_normal(5000),
+                               0.5 + 0.2 * rng.standard_normal(5000)])
+    first = np.array([0.5, 0.5])
+    pts, info = select_points(samples, 5, first=first, seed=1)
+    np.testing.assert_array_equal(pts[0], first)
+    z = pts / np.array(info["scale_unit"])
+    d = np.linalg.norm(z[:, None] - z[None], axis=-1)[np.triu_indices(5, 1)]
+    # spread in both directions, scaled by the posterior's own widths
+    assert d.min() > 1.0 and np.ptp(pts[:, 0]) > 0.02 and np.ptp(pts[:, 1]) > 0.4
+    # random posterior draws crowd together far more often
+    rand = samples[rng.choice(5000, 5)] / np.array(info["scale_unit"])
+    dr = np.linalg.norm(rand[:, None] - rand[None], axis=-1)[np.triu_indices(5, 1)]
+    assert d.min() > dr.min()
+    more, info2 = select_points(samples, 3, chosen=pts, seed=2)
+    zz = more / np.array(info["scale_unit"])
+    assert np.min(np.linalg.norm(zz[:, None] - z[None], axis=-1)) > 0.5
+    assert info2["earlier_points"] == 5
+    with pytest.raises(ConfigError):
+        select_points(samples[:2], 3)
+
+
+def test_interval_change_is_the_largest_move_of_an_interval_end():
+    a = {"x": {"ci90_unit": [0.1, 0.5]}, "y": {"ci90_unit": [0.2, 0.3]}}
+    b = {"x": {"ci90_unit": [0.15, 0.45]}, "y": {"ci90_unit": [0.2, 0.42]}}
+    assert interval_change(a, b) == pytest.approx(0.12)
+
+
+def test_refine_config_rejects_bad_values():
+    for kw, key in (({"budget": 0, "batch": 1}, "--budget"),
+                    ({"budget": 2, "batch": 3}, "--batch"),
+                    ({"budget": 2, "batch": 1, "tol": 0.0}, "--tol"),
+                    ({"budget": 2, "batch": 1, "refine_weight": 0}, "--refine-weight")):
+        with pytest.raises(ConfigError, match=key):
+            RefineConfig(**kw)
+
+
+def test_append_runs_keeps_the_dataset_processing_and_refuses_foreign_runs(refined, setup,
+                                                                         tmp_path):
+    out, _, _ = refined
+    ds0 = read_dataset(setup[1])
+    ds = append_runs(ds0, out / "runs", role="refine")
+    np.testing.assert_array_equal(ds.load_edges, ds0.load_edges)
+    np.testing.assert_array_equal(ds.depth, ds0.depth)
+    assert (ds.role[len(ds0):] == "refine").all() and ds.n_events[len(ds0):].min() == N_EVENTS
+    c = np.cbrt(ds.pressure)
+    assert ds.cbrt_min == pytest.approx(c.min()) and ds.cbrt_max == pytest.approx(c.max())
+    with pytest.raises(DatasetError, match="already in the dataset"):
+        append_runs(ds, out / "runs")
+    # a run of another problem (another cell) is refused, naming it
+    foreign = tmp_path / "foreign"
+    shutil.copytree(out / "runs", foreign)
+    src = json.loads((out / "base.json").read_text())
+    src["domain"]["cell_x"] *= 2
+    (foreign / "other.json").write_text(json.dumps(src))
+    entry = {"run_id": "x", "file": "runs/x.h5", "source": str(foreign / "other.json"),
+             "overrides": {}, "params": dict(zip(PAPER_SPACE.names, ds0.params[0],
+                                                 strict=True)), "seed": 0}
+    _fake_task(str(foreign), entry, "", 1, None)
+    with pytest.raises(DatasetError, match="another problem"):
+        append_runs(ds0, foreign, names=["x"])
+
+
+def test_the_command_line_refines_and_prints_the_rounds(setup, tmp_path, monkeypatch, capsys):
+    import calendaring.data.sweep as sweep_module
+    import inverse.cli as cli
+
+    monkeypatch.setattr(sweep_module, "run_task", _fake_task)
+    monkeypatch.setattr(sweep_module, "pack_task", _fake_pack)
+    _tmp, ds_path, model_path = setup
+    common = ["refine", "--model", str(model_path), "--dataset", str(ds_path),
+              "--target-row", "42", "--iterations", "40", "--restarts", "2", "--walkers", "20",
+              "--steps", "160", "--burn", "80", "--epochs", "4", "--workers", "1", "--quiet"]
+    rc = cli.main([*common, "--budget", "2", "--batch", "1", "--out", str(tmp_path / "a")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    state = json.loads((tmp_path / "a" / "refine.json").read_text())
+    assert state["runs_done"] == 2 and len(state["rounds"]) == 3
+    assert "budget spent" in out and out.count("\n") >= 5
+    for args, needle in ((["--budget", "2", "--batch", "3"], "--batch"),
+                         (["--budget", "0", "--batch", "1"], "--budget"),
+                         (["--budget", "2", "--batch", "1", "--tol", "1.5"], "--tol")):
+        rc = cli.main([*common, *args, "--out", str(tmp_path / "bad")])
+        assert rc == 2 and needle in capsys.readouterr().err
+        assert not (tmp_path / "bad" / "refine.json").exists()
+    rc = cli.main([*[a if a != "42" else "0" for a in common], "--budget", "2", "--batch", "1",
+                   "--out", str(tmp_path / "bad")])
+    assert rc == 2 and "never trained on" in capsys.readouterr().err
