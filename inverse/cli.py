@@ -269,10 +269,22 @@ def cmd_verify(args) -> int:
     return EXIT_OK
 
 
-def cmd_validate(args) -> int:
-    from calendaring import read_dataset
+def _settings(args) -> dict:
+    """The optimiser and posterior settings of ``validate`` and ``refine`` (one seed)."""
     from inverse.optimise import OptimiserConfig
     from inverse.posterior import PosteriorConfig
+
+    return {"optimiser": OptimiserConfig(iterations=args.iterations, restarts=args.restarts,
+                                         seed=args.seed),
+            "posterior": PosteriorConfig(walkers=args.walkers, steps=args.steps,
+                                         burn=args.burn, seed=args.seed,
+                                         sigma_rel=args.sigma_rel,
+                                         model_error_sigma=args.model_error,
+                                         correlation_length=args.correlation_length)}
+
+
+def cmd_validate(args) -> int:
+    from calendaring import read_dataset
     from inverse.validate import validate_to_dir
 
     output_path(args.out, "--out", folder=True)
@@ -280,15 +292,9 @@ def cmd_validate(args) -> int:
     ds = read_dataset(args.dataset)
     fix = parse_fix(args.fix)
     model.space.check(fix)
-    rep = validate_to_dir(
-        model, ds, args.out, rows=args.rows,
-        optimiser=OptimiserConfig(iterations=args.iterations, restarts=args.restarts,
-                                  seed=args.seed),
-        posterior=PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
-                                  seed=args.seed, sigma_rel=args.sigma_rel,
-                                  model_error_sigma=args.model_error,
-                                  correlation_length=args.correlation_length),
-        use_distribution=not args.no_distribution, fix=fix or None, progress=not args.quiet)
+    rep = validate_to_dir(model, ds, args.out, rows=args.rows, **_settings(args),
+                          use_distribution=not args.no_distribution, fix=fix or None,
+                          progress=not args.quiet)
     print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}")
     for name, p in rep["per_parameter"].items():
         print(f"{name:<18s}{p['mae_unit_optimum']:>11.3f}{100 * p['coverage_ci90']:>14.0f}%")
@@ -299,15 +305,11 @@ def cmd_validate(args) -> int:
 
 
 def cmd_refine(args) -> int:
-    from inverse.optimise import OptimiserConfig
-    from inverse.posterior import PosteriorConfig
     from inverse.refine import RefineConfig, refine
 
     output_path(args.out, "--out", folder=True)
-    for key in ("dataset",):
-        p = Path(getattr(args, key))
-        if not p.is_file():
-            raise ConfigError(f"--{key}", str(p), "an existing file")
+    if not Path(args.dataset).is_file():
+        raise ConfigError("--dataset", args.dataset, "an existing dataset file")
     cfg = RefineConfig(budget=args.budget, batch=args.batch, tol=args.tol,
                        dem_seed=args.dem_seed, candidates=args.candidates, epochs=args.epochs,
                        refine_weight=args.refine_weight, seed=args.seed, workers=args.workers,
@@ -318,13 +320,7 @@ def cmd_refine(args) -> int:
     state = refine(
         args.model, args.dataset, args.out, target=args.target, target_row=args.target_row,
         cfg=cfg, fix=parse_fix(args.fix), use_distribution=not args.no_distribution,
-        optimiser=OptimiserConfig(iterations=args.iterations, restarts=args.restarts,
-                                  seed=args.seed),
-        posterior=PosteriorConfig(walkers=args.walkers, steps=args.steps, burn=args.burn,
-                                  seed=args.seed, sigma_rel=args.sigma_rel,
-                                  model_error_sigma=args.model_error,
-                                  correlation_length=args.correlation_length),
-        progress=not args.quiet)
+        **_settings(args), progress=not args.quiet)
     print(format_refinement(state))
     print(f"wrote {Path(args.out) / 'refine.json'} and {state.get('plot', '')}")
     return EXIT_OK

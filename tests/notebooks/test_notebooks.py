@@ -44,7 +44,8 @@ def test_notebooks_present():
     """The notebook set of the project (a missing pair is an error, not a skip)."""
     expected = {"00_quickstart", "10_contact_law_validation", "20_calendering_run",
                 "30_breakage_statistics", "40_surrogate", "50_inverse_calibration",
-                "60_sobol_and_trends", "70_microstructure", "80_psd_robustness"}
+                "60_sobol_and_trends", "70_microstructure", "80_psd_robustness",
+                "90_posterior_refinement"}
     assert expected <= set(NOTEBOOKS), f"missing notebooks: {sorted(expected - set(NOTEBOOKS))}"
     for name in NOTEBOOKS:
         assert (NB_DIR / f"{name}.ipynb").is_file(), f"{name}.ipynb is missing (run jupytext)"
