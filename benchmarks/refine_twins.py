@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from calendaring import read_dataset, write_json, write_text
 
@@ -48,6 +49,7 @@ def cmd_run(args) -> int:
     from inverse.posterior import PosteriorConfig
     from inverse.refine import RefineConfig, refine
 
+    torch.set_num_threads(args.threads)  # a small network: one thread is fastest
     ds = read_dataset(args.dataset)
     rows = args.rows or default_twins(ds)
     out = Path(args.out)
@@ -132,6 +134,7 @@ def main(argv=None) -> int:
     r.add_argument("--burn", type=int, default=1000)
     r.add_argument("--workers", type=int, default=1)
     r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     p = sub.add_parser("report")
     p.add_argument("--out", required=True)
     args = ap.parse_args(argv)
