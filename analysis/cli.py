@@ -103,6 +103,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--out-dir", required=True, help="output folder (runs under runs/)")
     c.add_argument("--studies", default="r0r1,psd", help="comma-separated: r0r1, psd")
     c.add_argument("--seed", type=int, default=0, help="the one seed of every run")
+    c.add_argument("--seeds", type=int, nargs="+",
+                   help="several seeds: each in DIR/seed-<s>/, then their statistics and "
+                        "the paper's claims in DIR/seeds.json (instead of --seed)")
     c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="config override for every run (repeatable)")
     c.add_argument("--jobs", type=int, default=1, help="runs at the same time")
@@ -291,9 +294,17 @@ def cmd_compare(args) -> int:
         if args.voxels_per_diameter <= 0:
             raise ConfigError("--voxels-per-diameter", args.voxels_per_diameter, "> 0")
         micro_kw["voxels_per_diameter"] = args.voxels_per_diameter
-    rep = compare(out, preset=args.preset, studies=studies, seed=args.seed,
-                  extra_sets=args.set, jobs=args.jobs, micro=not args.no_microstructure,
-                  micro_kw=micro_kw, timeout=args.timeout, progress=not args.quiet)
+    kw = dict(preset=args.preset, studies=studies, extra_sets=args.set, jobs=args.jobs,
+              micro=not args.no_microstructure, micro_kw=micro_kw, timeout=args.timeout,
+              progress=not args.quiet)
+    if args.seeds:
+        from analysis.compare import compare_seeds
+
+        pooled = compare_seeds(out, args.seeds, **kw)
+        print(format_seeds(pooled))
+        print(f"wrote {out / 'seeds.json'} and {pooled['figure']}")
+        return EXIT_UNSTABLE if pooled["failures"] else EXIT_OK
+    rep = compare(out, seed=args.seed, **kw)
     for st in rep["runs"]:
         print(f"{st['name']:3s} {st['status']:7s} {st['description']}")
     for name, mic in (rep.get("microstructure") or {}).items():
@@ -312,6 +323,27 @@ def cmd_compare(args) -> int:
               f"at {d['first_breakage_depth_m']} m")
     print(f"wrote {out / 'compare.json'}")
     return EXIT_UNSTABLE if rep["failures"] else EXIT_OK  # 3: some runs stopped (listed)
+
+
+def format_seeds(pooled: dict) -> str:
+    """The final transport figures per case (mean +- sd over seeds) and the claims."""
+    lines = [f"seeds {pooled['seeds']}: final depth, mean +- sd over seeds"]
+    for c, st in pooled["cases"].items():
+        cells = []
+        for k, f, unit in (("final_porosity", 100, " %"), ("final_tortuosity", 1, ""),
+                           ("final_D_eff", 1, ""), ("breakage_events", 1, " events")):
+            v = st.get(k) or {}
+            if v.get("mean") is None:
+                continue
+            sd = f" +- {f * v['sd']:.3g}" if v.get("sd") is not None else ""
+            cells.append(f"{k.replace('final_', '')} {f * v['mean']:.4g}{sd}{unit}")
+        lines.append(f"{c:3s} " + ", ".join(cells))
+    for cl in pooled["claims"]:
+        rel, paper = cl["relative_change"], cl["paper_relative_change"]
+        rel_s = f"{100 * rel:+.1f} %" if rel is not None else "-"
+        paper_s = f"{100 * paper:+.1f} %" if paper is not None else "-"
+        lines.append(f"{cl['claim']}: {cl['verdict']} (here {rel_s}, paper {paper_s})")
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:

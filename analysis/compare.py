@@ -567,6 +567,161 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
     return report
 
 
+# ---------------------------------------------------------------------- seeds
+PAPER_FINAL = {
+    # name: (tortuosity, relative D_eff) at 19.5 um, paper section 3.5 (Fig. 13)
+    "R0": (2.2846, 0.1033), "R1": (1.8976, 0.1590), "R4": (1.8996, 0.1664),
+    "R5": (1.8728, 0.1760)}
+"""The paper's tortuosity and D_eff at the final depth [-] (its one run per case)."""
+CLAIMS = (
+    # (claim, case, baseline, metric, the paper's sign of case - baseline)
+    ("breakage lowers tortuosity at 19.5 um", "R1", "R0", "tortuosity", -1),
+    ("breakage raises D_eff at 19.5 um", "R1", "R0", "D_eff", +1),
+    ("larger particles (R4) lower tortuosity at 19.5 um", "R4", "R1", "tortuosity", -1),
+    ("larger particles (R4) raise D_eff at 19.5 um", "R4", "R1", "D_eff", +1),
+    ("larger particles (R5) lower tortuosity at 19.5 um", "R5", "R1", "tortuosity", -1),
+    ("larger particles (R5) raise D_eff at 19.5 um", "R5", "R1", "D_eff", +1),
+)
+SEED_METRICS = ("final_pressure_Pa", "peak_pressure_Pa", "breakage_events")
+MICRO_METRICS = ("porosity", "tortuosity", "D_eff")
+
+
+def _stats(values) -> dict:
+    """Mean, sample standard deviation (ddof 1), standard error and a two-sided 95 %
+    Student-t interval of the mean over seeds (None where fewer than two values)."""
+    from scipy import stats
+
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    out = {"n": len(v), "values": v.tolist(), "mean": float(v.mean()) if len(v) else None}
+    if len(v) >= 2:
+        sd = float(v.std(ddof=1))
+        se = sd / np.sqrt(len(v))
+        h = float(stats.t.ppf(0.975, len(v) - 1)) * se
+        out.update(sd=sd, se=se, ci95=[out["mean"] - h, out["mean"] + h])
+    else:
+        out.update(sd=None, se=None, ci95=None)
+    return out
+
+
+def seed_metrics(report: dict) -> dict[str, dict[str, float | None]]:
+    """Per case of one seed's report: pressure, events, and porosity / tortuosity / D_eff
+    at the first and the last analysed depth (``initial_*``, ``final_*``)."""
+    out = {}
+    for name, s in (report.get("summaries") or {}).items():
+        row = {k: s.get(k) for k in SEED_METRICS}
+        table = ((report.get("microstructure") or {}).get(name) or {}).get("table") or []
+        rows = sorted((r for r in table if r.get("depth_m") is not None),
+                      key=lambda r: r["depth_m"])
+        for tag, r in (("initial", rows[0] if rows else None),
+                       ("final", rows[-1] if rows else None)):
+            for k in MICRO_METRICS:
+                row[f"{tag}_{k}"] = None if r is None else r.get(k)
+        out[name] = row
+    return out
+
+
+def pool_seeds(reports: dict[int, dict]) -> dict:
+    """Seed statistics of several :func:`compare` reports (one per seed, same studies):
+    per case and metric the mean, sd and 95 % interval over seeds; per case against its
+    baseline (R1, and R1 against R0) the paired differences by seed (same seed: R0 and R1
+    share their packing) with their interval and the relative change; and each claim of
+    the paper (:data:`CLAIMS`) as ``holds`` (the 95 % interval of the difference excludes 0
+    on the paper's side), ``opposite`` (it excludes 0 on the other side) or ``not
+    resolved``, next to the paper's own change."""
+    per_seed = {int(k): seed_metrics(r) for k, r in reports.items()}
+    cases = sorted({c for m in per_seed.values() for c in m})
+    metrics = sorted({k for m in per_seed.values() for row in m.values() for k in row})
+    cases_out = {c: {k: _stats([per_seed[s].get(c, {}).get(k) for s in sorted(per_seed)])
+                     for k in metrics} for c in cases}
+    diffs = {}
+    for c in cases:
+        base = "R0" if c == "R1" else "R1"
+        if c == base or base not in cases:
+            continue
+        d = {}
+        for k in metrics:
+            pairs = [(per_seed[s][c].get(k), per_seed[s][base].get(k)) for s in sorted(per_seed)
+                     if c in per_seed[s] and base in per_seed[s]]
+            pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+            st = _stats([a - b for a, b in pairs])
+            mb = float(np.mean([b for _, b in pairs])) if pairs else None
+            st["relative"] = st["mean"] / mb if pairs and mb else None
+            d[k] = st
+        diffs[f"{c}-{base}"] = d
+    claims = []
+    for text, c, base, metric, sign in CLAIMS:
+        key = f"{c}-{base}"
+        st = diffs.get(key, {}).get(f"final_{metric}")
+        paper = None
+        if c in PAPER_FINAL and base in PAPER_FINAL:
+            j = 0 if metric == "tortuosity" else 1
+            paper = PAPER_FINAL[c][j] / PAPER_FINAL[base][j] - 1
+        if st is None or st["n"] == 0:
+            verdict = "not measured"
+        elif st["ci95"] is None:
+            verdict = "one seed: not resolved"
+        elif min(sign * st["ci95"][0], sign * st["ci95"][1]) > 0:
+            verdict = "holds"
+        elif max(sign * st["ci95"][0], sign * st["ci95"][1]) < 0:
+            verdict = "opposite"
+        else:
+            verdict = "not resolved (the 95 % interval holds 0)"
+        claims.append({"claim": text, "difference": key, "metric": f"final_{metric}",
+                       "verdict": verdict, "relative_change": None if st is None else
+                       st.get("relative"), "paper_relative_change": paper,
+                       "difference_stats": st})
+    return {"seeds": sorted(per_seed), "per_seed": per_seed, "cases": cases_out,
+            "differences": diffs, "claims": claims,
+            "paper_final": {k: {"tortuosity": v[0], "D_eff": v[1]}
+                            for k, v in PAPER_FINAL.items()},
+            "notes": "sd: sample standard deviation over seeds (ddof 1); ci95: two-sided "
+                     "Student-t interval of the mean; differences are paired by seed"}
+
+
+def compare_seeds(out_dir: str | Path, seeds: Sequence[int], **kw) -> dict:
+    """:func:`compare` once per seed (``out_dir/seed-<s>/``, each resumable), then
+    :func:`pool_seeds` into ``out_dir/seeds.json`` and a figure of the final tortuosity and
+    D_eff per case (mean and sd over seeds, the paper's values as crosses)."""
+    from analysis.plots import atomic_write_json
+
+    seeds = [int(x) for x in seeds]
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ConfigError("--seeds", seeds, "distinct seeds >= 0")
+    out_dir = Path(out_dir)
+    reports = {s: compare(out_dir / f"seed-{s}", seed=s, **kw) for s in seeds}
+    pooled = pool_seeds(reports)
+    pooled["failures"] = {s: r["failures"] for s, r in reports.items() if r["failures"]}
+    pooled["figure"] = str(plot_seeds(pooled, out_dir / "seeds_final_transport.png"))
+    atomic_write_json(out_dir / "seeds.json", pooled)
+    return pooled
+
+
+def plot_seeds(pooled: dict, path: Path) -> Path:
+    """Final tortuosity and D_eff per case: mean with sd bars over seeds, each seed a dot,
+    the paper's value a cross."""
+    import matplotlib.pyplot as plt
+
+    from analysis.plots import save_figure
+
+    cases = [c for c in ("R0", "R1", "C1", "C2", "C3", "C4", "R4", "R5")
+             if c in pooled["cases"]]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, metric, j in ((axes[0], "tortuosity", 0), (axes[1], "D_eff", 1)):
+        for x, c in enumerate(cases):
+            st = pooled["cases"][c][f"final_{metric}"]
+            if st["n"]:
+                ax.plot([x] * st["n"], st["values"], ".", color="0.6")
+                ax.errorbar(x, st["mean"], yerr=st["sd"] or 0, fmt="o", color="C0",
+                            capsize=3)
+            if c in PAPER_FINAL:
+                ax.plot(x, PAPER_FINAL[c][j], "x", color="C3", ms=8)
+        ax.set_xticks(range(len(cases)), cases)
+        ax.set_ylabel(f"{metric} at the final depth [-]")
+    axes[0].set_title(f"mean +- sd over seeds {pooled['seeds']} (x: the paper)", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def _raw(rec) -> dict:
     return {"depth": rec.pressure["depth"], "pressure": rec.pressure["value"]}
 
@@ -578,5 +733,6 @@ def _am_diameters(rec) -> np.ndarray:
     return 2 * sn.radius[sn.material == rec.config.material_names.index("AM")]
 
 
-__all__ = ["PSD_CASES", "STUDIES", "TABLE5", "Case", "compare", "execute", "plan",
-           "run_command", "run_summary", "target_snapshots", "truncation_sigmas"]
+__all__ = ["CLAIMS", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case", "compare",
+           "compare_seeds", "execute", "plan", "plot_seeds", "pool_seeds", "run_command",
+           "run_summary", "seed_metrics", "target_snapshots", "truncation_sigmas"]

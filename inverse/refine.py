@@ -269,6 +269,8 @@ def _truth_rows(space, truth: np.ndarray | None, u_opt: np.ndarray, summary: dic
 class Refinement:
     """One refinement in its folder (see the module docstring); :meth:`run` does the rest.
 
+    Torch runs on the caller's threads (the CLI sets one: fastest for this small network).
+
     Args:
         model_path: the initial surrogate checkpoint.
         dataset_path: the dataset it was trained on (its problem is the DEM's).
@@ -504,8 +506,9 @@ class Refinement:
             if dpath.exists():
                 ds = read_dataset(dpath)
             else:
-                ds = append_runs(ds_prev, self.out / "runs", names=done, role=ROLE)
-                write_dataset(dpath, ds)
+                write_dataset(dpath, append_runs(ds_prev, self.out / "runs", names=done,
+                                                 role=ROLE))
+                ds = read_dataset(dpath)
             new_rows = np.nonzero(np.isin(ds.run_id, done))[0]
             if epath.exists():
                 err = json.loads(epath.read_text())

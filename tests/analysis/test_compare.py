@@ -159,3 +159,78 @@ def test_r0_r1_tiny_microstructure_table_and_cache(tiny_r0r1, monkeypatch):
     rep2 = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
                    micro=True, micro_kw={"voxels_per_diameter": 3.0}, progress=False)
     assert calls == [] and rep2["microstructure"]["R0"]["cached"]
+
+
+def _fake_report(seed: int, values: dict[str, tuple[float, float, float]]) -> dict:
+    """A compare() report with summaries and final-depth microstructure rows:
+    ``values[case] = (porosity, tortuosity, D_eff)`` at 19.5 um."""
+    rep = {"seed": seed, "failures": [], "summaries": {}, "microstructure": {}}
+    for c, (por, tau, deff) in values.items():
+        rep["summaries"][c] = {"final_pressure_Pa": 1e8 + seed, "peak_pressure_Pa": 1.1e8,
+                               "breakage_events": 100 + seed}
+        rep["microstructure"][c] = {"table": [
+            {"depth_m": 0.0, "porosity": 0.42, "tortuosity": 1.5, "D_eff": 0.28},
+            {"depth_m": 19.5e-6, "porosity": por, "tortuosity": tau, "D_eff": deff}]}
+    return rep
+
+
+def test_pool_seeds_statistics_paired_differences_and_claims():
+    from scipy import stats
+
+    from analysis.compare import pool_seeds
+
+    rng = np.random.default_rng(0)
+    reports = {}
+    r1_tau = 1.9 + 0.02 * rng.standard_normal(4)
+    for k, s in enumerate((0, 1, 2, 3)):
+        reports[s] = _fake_report(s, {
+            "R0": (0.22, r1_tau[k] + 0.35, 0.10),           # breakage lowers tau: holds
+            "R1": (0.22, r1_tau[k], 0.16),
+            "R4": (0.22, r1_tau[k] + 0.1 * (-1) ** k, 0.16 + 0.05 * (-1) ** k),  # unresolved
+            "R5": (0.22, r1_tau[k] + 0.2, 0.13)})          # the opposite of the paper
+    p = pool_seeds(reports)
+    assert p["seeds"] == [0, 1, 2, 3]
+    st = p["cases"]["R1"]["final_tortuosity"]
+    assert st["mean"] == pytest.approx(r1_tau.mean())
+    assert st["sd"] == pytest.approx(r1_tau.std(ddof=1))
+    h = stats.t.ppf(0.975, 3) * r1_tau.std(ddof=1) / 2
+    assert st["ci95"] == pytest.approx([r1_tau.mean() - h, r1_tau.mean() + h])
+    d = p["differences"]["R1-R0"]["final_tortuosity"]
+    assert d["mean"] == pytest.approx(-0.35) and d["sd"] == pytest.approx(0, abs=1e-12)
+    assert d["relative"] == pytest.approx(-0.35 / (r1_tau.mean() + 0.35))
+    verdicts = {c["claim"]: c["verdict"] for c in p["claims"]}
+    assert verdicts["breakage lowers tortuosity at 19.5 um"] == "holds"
+    assert verdicts["breakage raises D_eff at 19.5 um"] == "holds"
+    assert verdicts["larger particles (R4) lower tortuosity at 19.5 um"].startswith(
+        "not resolved")
+    assert verdicts["larger particles (R5) lower tortuosity at 19.5 um"] == "opposite"
+    assert verdicts["larger particles (R5) raise D_eff at 19.5 um"] == "opposite"
+    paper = {c["claim"]: c["paper_relative_change"] for c in p["claims"]}
+    assert paper["breakage lowers tortuosity at 19.5 um"] == pytest.approx(1.8976 / 2.2846 - 1)
+    one = pool_seeds({0: reports[0]})
+    assert all(c["verdict"] == "one seed: not resolved" for c in one["claims"])
+
+
+def test_compare_seeds_runs_each_seed_in_its_folder(tmp_path, monkeypatch, capsys):
+    import analysis.cli as cli
+    import analysis.compare as cmp
+
+    calls = []
+
+    def fake_compare(out_dir, seed=0, **kw):
+        calls.append((Path(out_dir).name, seed, kw["preset"]))
+        return _fake_report(seed, {"R0": (0.22, 2.3 + 0.01 * seed, 0.10),
+                                   "R1": (0.22, 1.9 + 0.02 * seed, 0.16)})
+
+    monkeypatch.setattr(cmp, "compare", fake_compare)
+    rc = cli.main(["compare", "--preset", "tiny", "--out-dir", str(tmp_path / "s"),
+                   "--studies", "r0r1", "--seeds", "0", "1", "2", "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert calls == [("seed-0", 0, "tiny"), ("seed-1", 1, "tiny"), ("seed-2", 2, "tiny")]
+    pooled = json.loads((tmp_path / "s" / "seeds.json").read_text())
+    assert pooled["seeds"] == [0, 1, 2] and (tmp_path / "s" / "seeds_final_transport.png").is_file()
+    assert "breakage lowers tortuosity at 19.5 um: holds" in out
+    rc = cli.main(["compare", "--preset", "tiny", "--out-dir", str(tmp_path / "t"),
+                   "--studies", "r0r1", "--seeds", "1", "1", "--quiet"])
+    assert rc == 2 and "--seeds" in capsys.readouterr().err
