@@ -662,7 +662,8 @@ def plot_refinement(rounds: list[dict], space, path) -> Path:
         ax.set_xlabel("round", fontsize=8)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
-    fig.suptitle("90 % intervals (bars) and optimum (dots) per round", fontsize=9)
+    known = " (dashed: the truth)" if rounds[0]["truth"] else ""
+    fig.suptitle(f"90 % intervals (bars) and optimum (dots) per round{known}", fontsize=9)
     fig.tight_layout()
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.tmp.png")
