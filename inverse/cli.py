@@ -125,7 +125,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="stop when no 90 %% interval end moves more than this fraction of "
                         "the unit range between rounds (default 0.05)")
     f.add_argument("--dem-seed", type=integer(0),
-                   help="seed of the new DEM runs (default: the dataset's training seed)")
+                   help="one seed (bed) for every new DEM run (default: each run a bed of "
+                        "its own, on seeds the dataset never used)")
     f.add_argument("--epochs", type=integer(1),
                    help="retraining epochs (default: the initial model's)")
     f.add_argument("--refine-weight", type=integer(1), default=1,

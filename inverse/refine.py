@@ -9,7 +9,9 @@ rounds of
    round starts at the calibrated optimum;
 2. **run** them with the DEM through :func:`calendaring.data.sweep.sweep` (resumable, local
    workers or a Dask scheduler), with the dataset's own problem configuration
-   (:func:`calendaring.data.dataset.dataset_config`) and one DEM seed;
+   (:func:`calendaring.data.dataset.dataset_config`), by default each run on a bed of its
+   own (seeds the dataset never used: a measured curve's bed is unknown, so the error
+   measured on them must include the bed-to-bed scatter), or all on one given seed;
 3. **measure** the current surrogate's error on the new runs *before* they are trained on
    (the honest out-of-sample check near the posterior: :func:`surrogate.evaluate.model_metrics`);
 4. **add** them to the dataset with role ``refine`` (:func:`calendaring.data.dataset.append_runs`)
@@ -76,7 +78,7 @@ class RefineConfig:
     budget: int  # DEM runs in all
     batch: int  # DEM runs per round
     tol: float = 0.05  # stop when no 90 % interval end moves more than this (unit range)
-    dem_seed: int | None = None  # None: the seed of the dataset's training runs
+    dem_seed: int | None = None  # None: every new run on a bed of its own (see Refinement)
     candidates: int = 4000  # posterior samples the selection chooses among
     epochs: int | None = None  # retraining epochs (None: the initial model's)
     refine_weight: int = 1  # copies of each refine row in the training split
@@ -345,17 +347,18 @@ class Refinement:
             self.target = load_target(target, m)
             self.target_desc = {"path": str(target)}
         self.target_desc["digest"] = _target_digest(self.target)
-        if cfg.dem_seed is not None:
-            self.dem_seed = int(cfg.dem_seed)
-        else:
-            seeds = np.unique(d.seed[d.role == "train"])
-            self.dem_seed = int(seeds[0]) if len(seeds) == 1 else 0
+        # the new runs' beds: by default each run its own, on seeds the dataset never used
+        # (so the error measured on them includes the bed-to-bed scatter that a
+        # measurement has), else all on the one given seed (one settled bed, cheaper)
+        self.distinct_beds = cfg.dem_seed is None
+        self.dem_seed = int(d.seed.max()) + 1 if self.distinct_beds else int(cfg.dem_seed)
         sigma0 = self.posterior.model_error_sigma or initial_model_error(m)
         self.sigma0 = float(sigma0)
         self.request = {
             "model": str(self.model_path), "model_sha256": _sha(self.model_path),
             "dataset": str(self.dataset_path), "dataset_fingerprint": d.fingerprint,
             "target": self.target_desc, "config": asdict(cfg), "dem_seed": self.dem_seed,
+            "distinct_beds": self.distinct_beds,
             "fix": self.fix, "use_distribution": bool(use_distribution),
             "optimiser": self.optimiser.to_json(),
             "posterior": {**self.posterior.to_json(), "model_error_sigma": self.sigma0}}
@@ -439,9 +442,11 @@ class Refinement:
             write_text(path, config_json(dataset_config(self.ds0)) + "\n")
         return path
 
-    def _round(self, r: int, k: int, prev: dict, ds_prev, model_prev, model_prev_path: Path,
-               sq_errors: list[float]) -> tuple[dict, object, object, Path]:
-        """Round ``r`` >= 1 (each step reused when on disk)."""
+    def _round(self, r: int, k: int, spent: int, prev: dict, ds_prev, model_prev,
+               model_prev_path: Path, sq_errors: list[float]
+               ) -> tuple[dict, object, object, Path]:
+        """Round ``r`` >= 1 (each step reused when on disk); ``spent``: runs planned in the
+        rounds before it."""
         import surrogate
         from calendaring import (
             SweepOptions,
@@ -481,11 +486,14 @@ class Refinement:
         x = read_design_csv(csv, space)
         # 2. run
         t0 = time.perf_counter()
-        _log(f"round {r}: {len(x)} DEM runs (seed {self.dem_seed}) in {self.out / 'runs'}",
-             self.progress)
+        seed = self.dem_seed + (spent if self.distinct_beds else 0)
+        beds = (f"seeds {seed}-{seed + len(x) - 1}" if self.distinct_beds and len(x) > 1
+                else f"seed {seed}")
+        _log(f"round {r}: {len(x)} DEM runs ({beds}) in {self.out / 'runs'}", self.progress)
         runs = sweep(SweepOptions(
             source=str(self._base_config().resolve()), out=self.out / "runs", design=str(csv),
-            n=len(x), seed=self.dem_seed, role=ROLE, workers=self.cfg.workers,
+            n=len(x), seed=seed, seed_per_row=self.distinct_beds, role=ROLE,
+            workers=self.cfg.workers,
             threads_per_run=self.cfg.threads_per_run, scheduler=self.cfg.scheduler,
             max_attempts=self.cfg.max_attempts, timeout=self.cfg.timeout,
             progress=self.progress), task=self.task, pack=self.pack)
@@ -608,8 +616,8 @@ class Refinement:
                     mpath = self.rdir(r) / "model.pt"
                     model = surrogate.load(mpath)
             else:
-                rec, ds, model, mpath = self._round(r, k, rounds[-1], ds, model, mpath,
-                                                    sq_errors)
+                rec, ds, model, mpath = self._round(r, k, spent, rounds[-1], ds, model,
+                                                    mpath, sq_errors)
             rounds.append(rec)
             self._write_state(rounds, "running")
             _log(self._line(rec), self.progress)

@@ -128,9 +128,12 @@ def packing_key(cfg: SimConfig) -> str:
 
 
 def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, seed: int,
-         replicates: int, role: str, space: ParameterSpace = PAPER_SPACE
-         ) -> tuple[np.ndarray, str, list[RunEntry]]:
-    """The design rows, their label and the run entries of one sweep invocation."""
+         replicates: int, role: str, space: ParameterSpace = PAPER_SPACE,
+         seed_per_row: bool = False) -> tuple[np.ndarray, str, list[RunEntry]]:
+    """The design rows, their label and the run entries of one sweep invocation. The runs
+    of a row take seeds ``seed``, ``seed + 1``, ... (one per replicate); with
+    ``seed_per_row`` each row has its own: ``seed + row x replicates + replicate`` (every
+    run on a bed of its own)."""
     if role not in ROLES:
         raise ConfigError("--role", role, f"one of {ROLES}")
     if replicates < 1:
@@ -145,7 +148,7 @@ def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, se
     for i, row in enumerate(x):
         params = space.as_dict(row)
         for r in range(replicates):
-            s = seed + r
+            s = seed + (i * replicates if seed_per_row else 0) + r
             cfg = run_config(base, params, s)
             h = hashlib.sha256(config_json(cfg).encode()).hexdigest()[:10]
             run_id = f"{role}-{label}-{i:04d}-s{s}-{h}"
@@ -351,6 +354,7 @@ class SweepOptions:
     timeout: float | None = None  # s per run attempt
     gpu: bool = False  # ask each task for one "GPU" worker resource
     progress: bool = True
+    seed_per_row: bool = False  # each design row its own seed (bed), see plan()
 
 
 def sweep(opt: SweepOptions, task=None, pack=None) -> dict[str, RunEntry]:
@@ -365,7 +369,7 @@ def sweep(opt: SweepOptions, task=None, pack=None) -> dict[str, RunEntry]:
     out = Path(opt.out)
     dseed = opt.seed if opt.design_seed is None else opt.design_seed
     x, label, planned = plan(opt.source, opt.overrides, opt.design, opt.n, dseed, opt.seed,
-                             opt.replicates, opt.role)
+                             opt.replicates, opt.role, seed_per_row=opt.seed_per_row)
     task = task or run_task
     with _folder_lock(out):
         for sub in ("designs", "packings", "runs", "digests", "logs"):

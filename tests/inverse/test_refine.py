@@ -126,6 +126,8 @@ def test_refinement_spends_the_budget_in_rounds_and_records_them(refined, setup)
     pts = np.vstack([read_design_csv(out / "rounds" / f"r0{r}" / f"refine-r0{r}.csv")
                      for r in (1, 2)])
     np.testing.assert_allclose(ds2.params[ref], pts, rtol=1e-12)
+    # every new run on a bed of its own, on seeds the dataset never used
+    assert sorted(ds2.seed[ref].tolist()) == [4, 5, 6, 7] and set(ds0.seed.tolist()) == {3}
     # the first point of round 1 is round 0's optimum (its free coordinates)
     r0 = state["rounds"][0]
     np.testing.assert_allclose(PAPER_SPACE.to_unit(pts[:1])[0], r0["optimum_unit"], atol=1e-9)
@@ -202,6 +204,24 @@ def test_a_larger_budget_goes_on_and_another_request_is_refused(refined, setup, 
     more = _refinement(setup, copy, cfg=RefineConfig(budget=6, batch=2, tol=1e-6, epochs=6,
                                                      workers=1, candidates=500)).run()
     assert len(CALLS) == 2 and [r["round"] for r in more["rounds"]] == [0, 1, 2, 3]
+
+
+def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
+    state = _refinement(setup, tmp_path / "one", cfg=RefineConfig(
+        budget=2, batch=1, tol=1e-6, epochs=4, workers=1, candidates=500, dem_seed=9)).run()
+    ds = read_dataset(tmp_path / "one" / "rounds" / "r02" / "dataset.h5")
+    assert state["runs_done"] == 2 and ds.seed[ds.role == "refine"].tolist() == [9, 9]
+    assert state["request"]["distinct_beds"] is False
+
+
+def test_sweep_plan_gives_each_row_its_own_seed_on_request():
+    from calendaring.data.sweep import plan
+
+    _, _, same = plan("preset:tiny", {}, "lhs", 3, 0, 10, 2, "train")
+    _, _, own = plan("preset:tiny", {}, "lhs", 3, 0, 10, 2, "train", seed_per_row=True)
+    assert [e.seed for e in same] == [10, 11] * 3
+    assert [e.seed for e in own] == [10, 11, 12, 13, 14, 15]
+    assert len({e.packing for e in own}) == 6 and len({e.packing for e in same}) == 2
 
 
 def test_a_twin_must_be_a_row_the_model_never_trained_on(setup, tmp_path):
