@@ -27,6 +27,7 @@ from calendaring import (
     PRESETS,
     ConfigError,
     ContractParser,
+    input_file,
     integer,
     output_path,
     run_cli,
@@ -309,15 +310,13 @@ def cmd_refine(args) -> int:
     from inverse.refine import RefineConfig, refine
 
     output_path(args.out, "--out", folder=True)
-    if not Path(args.dataset).is_file():
-        raise ConfigError("--dataset", args.dataset, "an existing dataset file")
+    input_file(args.dataset, "--dataset", (".h5", ".hdf5"))
+    input_file(args.model, "--model")
     cfg = RefineConfig(budget=args.budget, batch=args.batch, tol=args.tol,
                        dem_seed=args.dem_seed, candidates=args.candidates, epochs=args.epochs,
                        refine_weight=args.refine_weight, seed=args.seed, workers=args.workers,
                        threads_per_run=args.threads_per_run, scheduler=args.scheduler,
                        timeout=args.timeout)
-    if not Path(args.model).is_file():
-        raise ConfigError("--model", args.model, "an existing surrogate checkpoint file")
     state = refine(
         args.model, args.dataset, args.out, target=args.target, target_row=args.target_row,
         cfg=cfg, fix=parse_fix(args.fix), use_distribution=not args.no_distribution,

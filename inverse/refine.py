@@ -182,8 +182,8 @@ def out_of_sample_error(model, ds, rows) -> dict:
     from surrogate.evaluate import model_metrics
 
     rows = np.asarray(rows, int)
-    out = model_metrics(model, ds, rows)
     pred = model.predict_unit(ds.unit_params[rows])
+    out = model_metrics(model, ds, rows, pred)
     r = pred.pressure_normalised - model.normalise_pressure(ds.pressure[rows])
     out["rows"] = [{"run_id": str(ds.run_id[i]),
                     "pressure_rmse_normalised": float(np.sqrt(np.mean(e**2)))}

@@ -114,14 +114,15 @@ def distribution_errors(d_true: np.ndarray, d_pred: np.ndarray, model: Surrogate
             "centroid_diameter_rel_error_mean": float(np.nanmean(dia_abs / ct[:, 1]))}
 
 
-def model_metrics(model: SurrogateModel, ds: Dataset, rows) -> dict:
+def model_metrics(model: SurrogateModel, ds: Dataset, rows, pred=None) -> dict:
     """All errors of ``model`` on dataset ``rows`` (see :func:`pressure_errors`,
-    :func:`distribution_errors`); ensembles add spread and 2-sigma coverage."""
+    :func:`distribution_errors`); ensembles add spread and 2-sigma coverage. ``pred``: the
+    model's prediction for those rows, if already made."""
     rows = np.asarray(rows, dtype=int)
     if len(rows) == 0:
         return {"n_rows": 0}
     sub = ds.subset(rows)
-    pred = model.predict_unit(sub.unit_params)
+    pred = pred or model.predict_unit(sub.unit_params)
     out = {"pressure": pressure_errors(sub.pressure, pred.pressure, model)}
     ev = has_events(sub)
     out["distribution"] = distribution_errors(sub.histogram[ev], pred.distribution[ev], model)

@@ -612,11 +612,10 @@ def _read_rows(folder: Path, n_points: int, space: ParameterSpace, progress: boo
                   f"({time.perf_counter() - t0:.0f} s)",
                   file=sys.stderr, flush=True)
     if rows:
-        bad = [r["run_id"] for r in rows
-               if np.any(np.asarray(r["params"]) < space.lower - 1e-9 * (space.upper
-                                                                          - space.lower))
-               or np.any(np.asarray(r["params"]) > space.upper + 1e-9 * (space.upper
-                                                                          - space.lower))]
+        params = np.array([r["params"] for r in rows])
+        tol = 1e-9 * (space.upper - space.lower)
+        bad = [r["run_id"] for r, x in zip(rows, params, strict=True)
+               if np.any(x < space.lower - tol) or np.any(x > space.upper + tol)]
         if bad:
             raise DatasetError(folder, f"runs with parameters outside the space bounds: "
                                        f"{bad[:5]}")
@@ -745,8 +744,9 @@ def append_runs(ds: Dataset, folder: str | Path, names: Iterable[str] | None = N
     if role is not None:
         for r in rows:
             r["role"] = role
-    new = _row_arrays(rows, ds.load_edges, ds.diameter_edges,
-                      list(ds.provenance.get("group_names", [])))
+    old_groups = list(ds.provenance.get("group_names", []))
+    groups = old_groups + sorted({r["group"] for r in rows if r["group"]} - set(old_groups))
+    new = _row_arrays(rows, ds.load_edges, ds.diameter_edges, groups)
     raw = np.stack([r["raw"] for r in rows])
     new["pressure_raw"] = raw
     new["pressure"] = smooth(raw, ds.savgol_window, ds.savgol_order)
@@ -758,8 +758,7 @@ def append_runs(ds: Dataset, folder: str | Path, names: Iterable[str] | None = N
         "runs_folder": str(folder.resolve()), "rows": len(rows), "skipped": len(skipped),
         "role": role or "from the manifest",
         "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")})
-    prov["group_names"] = list(ds.provenance.get("group_names", [])) + sorted(
-        {r["group"] for r in rows if r["group"]} - set(ds.provenance.get("group_names", [])))
+    prov["group_names"] = groups
     return replace(ds, **merged, cbrt_min=float(c.min()), cbrt_max=float(c.max()),
                    skipped=list(ds.skipped) + skipped, provenance=prov, path=None)
 
