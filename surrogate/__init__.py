@@ -9,6 +9,7 @@ Modules: :mod:`~surrogate.model` (architecture), :mod:`~surrogate.data` (splits,
 normalisation, torch dataset), :mod:`~surrogate.losses`, :mod:`~surrogate.train`,
 :mod:`~surrogate.ensemble`, :mod:`~surrogate.baseline` (PCA + GP),
 :mod:`~surrogate.evaluate` (metrics, noise floors, CV, Table 3, Fig. 5),
+:mod:`~surrogate.learning` (error on held-out seed means against training runs),
 :mod:`~surrogate.checkpoint` and :mod:`~surrogate.api` (files and the Python interface),
 :mod:`~surrogate.cli`.
 """

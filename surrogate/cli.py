@@ -103,6 +103,25 @@ def cmd_evaluate(args) -> int:
     return EXIT_OK
 
 
+def cmd_learning_curve(args) -> int:
+    from calendaring import read_dataset
+    from surrogate.learning import format_learning_curve, learning_curve
+    from surrogate.train import TrainConfig, config_for
+
+    _set_threads(args.threads)
+    ds = read_dataset(args.dataset)
+    out_dir = output_path(args.out_dir, "--out-dir", folder=True)
+    cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+                      patience=args.patience, seed=args.seed)
+    model_config = config_for(ds, dropout=args.dropout)
+    res = learning_curve(ds, args.sizes, args.repeats, cfg, model_config, out_dir,
+                         target=args.target, progress=not args.quiet)
+    for line in format_learning_curve(res):
+        print(line)
+    print(f"wrote {', '.join(res.get('files', []))} to {out_dir}")
+    return EXIT_OK
+
+
 def parse_params(items: list[str]) -> dict[str, list[float]]:
     """``["d0=9e-6", "phi=1,2"]`` -> ``{"d0": [9e-6], "phi": [1.0, 2.0]}``."""
     out = {}
@@ -215,6 +234,28 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     e.add_argument("--quiet", action="store_true", help="no progress bar")
     e.set_defaults(func=cmd_evaluate)
+
+    c = sub.add_parser("learning-curve", help="error on the held-out seed means against "
+                       "the number of training runs, and the runs a target takes")
+    c.add_argument("dataset", help="dataset file with holdout groups of >= 2 seeds")
+    c.add_argument("--out-dir", required=True, help="output folder (resumed when it holds "
+                   "a learning curve of the same dataset and settings)")
+    c.add_argument("--sizes", type=int, nargs="+",
+                   help="training-run counts (default: the trainable rows and up to 3 "
+                        "halvings of them)")
+    c.add_argument("--repeats", type=int, default=3, help="shuffles of the training rows "
+                   "(the spread of each point; default 3)")
+    c.add_argument("--target", type=float, default=3e-4,
+                   help="pressure MSE target, normalised units (default 3e-4, the paper's)")
+    c.add_argument("--epochs", type=int, default=80)
+    c.add_argument("--batch-size", type=int, default=16)
+    c.add_argument("--lr", type=float, default=1e-3)
+    c.add_argument("--patience", type=int, default=20)
+    c.add_argument("--dropout", type=float, default=0.3)
+    c.add_argument("--seed", type=int, default=0, help="seed of the shuffles and weights")
+    c.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    c.add_argument("--quiet", action="store_true", help="no progress bar")
+    c.set_defaults(func=cmd_learning_curve)
 
     r = sub.add_parser("predict", help="predict pressure and breakage distribution")
     r.add_argument("model", help="checkpoint (MODEL.pt)")

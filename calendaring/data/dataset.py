@@ -289,6 +289,62 @@ def sampled_kl_floor(counts: np.ndarray, n_sim: int = 200, seed: int = 0) -> dic
             "n_sim": int(n_sim)}
 
 
+def perfect_model_kl(q: np.ndarray, n_events: int, n_sim: int = 200, seed: int = 0) -> float:
+    """Mean KL(sample || q) of ``n_events`` events drawn independently from ``q``: what a
+    model predicting the true distribution ``q`` scores against a histogram of that many
+    events (the least KL a model can be expected to reach on such a target).
+
+    Args:
+        q: ``(L, D)`` probabilities (normalised here).
+        n_events: events in the target histogram (>= 1).
+        n_sim: simulated histograms.
+        seed: NumPy seed.
+    """
+    q = np.asarray(q, float)
+    if not (q.ndim == 2 and np.all(q >= 0) and q.sum() > 0):
+        raise ConfigError("q", f"shape {q.shape}", "a non-negative (L, D) histogram, not all 0")
+    if int(n_events) < 1:
+        raise ConfigError("n_events", n_events, "an integer >= 1")
+    q = q / q.sum()
+    rng = np.random.default_rng(seed)
+    sims = rng.multinomial(int(n_events), q.ravel(), size=int(n_sim)).reshape(-1, *q.shape)
+    return float(np.mean(kl_divergence(sims / int(n_events), q)))
+
+
+def seed_means(ds: Dataset, role: str = "holdout", min_runs: int = 2) -> Dataset:
+    """One row per replicate group of ``role`` with ``>= min_runs`` runs: the seed mean.
+
+    A single chaotic run is not a test target; the mean over the seeds of one parameter set
+    is. Pressure (raw and smoothed): the mean over the group's runs [Pa]. Histogram: the
+    events of all runs pooled (each run's probabilities weighted by its event count);
+    ``n_events``: their sum; ``wall_time``: the sum; ``seed``: the number of runs averaged
+    (the runs themselves stay in ``ds``); ``run_id``: ``mean:<first run id>+<k-1>``. The
+    normalisation, edges and metadata are those of ``ds``.
+    """
+    if role not in ROLES:
+        raise ConfigError("role", role, f"one of {ROLES}")
+    mine = ds.role == role
+    groups = [g for g in sorted({int(g) for g in ds.group[mine & (ds.group >= 0)]})
+              if np.sum((ds.group == g) & mine) >= min_runs]
+    rows = []
+    for g in groups:
+        idx = np.nonzero((ds.group == g) & (ds.role == role))[0]
+        w = ds.n_events[idx].astype(float)
+        pooled = np.tensordot(w, ds.histogram[idx], axes=1)
+        total = pooled.sum()
+        rows.append({"first": idx[0], "pressure_raw": ds.pressure_raw[idx].mean(axis=0),
+                     "pressure": ds.pressure[idx].mean(axis=0),
+                     "histogram": pooled / total if total > 0 else pooled,
+                     "n_events": int(w.sum()), "seed": len(idx),
+                     "run_id": f"mean:{ds.run_id[idx[0]]}+{len(idx) - 1}",
+                     "wall_time": float(ds.wall_time[idx].sum())})
+    out = ds.subset(np.array([r["first"] for r in rows], dtype=int))
+    if not rows:
+        return out
+    return replace(out, **{k: np.array([r[k] for r in rows]) for k in (
+        "pressure_raw", "pressure", "histogram", "n_events", "seed", "run_id", "wall_time")})
+
+
 def noise_floor(ds: Dataset, kl_simulations: int = 200) -> dict:
     """Run-to-run noise at repeated parameters (replicate groups with >= 2 runs).
 
@@ -862,6 +918,6 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
            "append_runs", "bin_centres", "bin_events", "build_dataset", "centroids",
            "dataset_config", "histogram_edges",
-           "kl_divergence", "noise_floor", "provenance_report", "read_dataset",
-           "resample_pressure", "smooth", "synthetic_dataset", "synthetic_response",
-           "write_dataset"]
+           "kl_divergence", "noise_floor", "perfect_model_kl", "provenance_report",
+           "read_dataset", "resample_pressure", "sampled_kl_floor", "seed_means", "smooth",
+           "synthetic_dataset", "synthetic_response", "write_dataset"]

@@ -13,9 +13,11 @@ from calendaring.data.dataset import (
     histogram_edges,
     kl_divergence,
     noise_floor,
+    perfect_model_kl,
     read_dataset,
     resample_pressure,
     sampled_kl_floor,
+    seed_means,
     smooth,
     synthetic_dataset,
     write_dataset,
@@ -121,6 +123,52 @@ def test_sampled_kl_floor_matches_the_chi_square_limit():
     assert out["ratio"] == pytest.approx(runs / (runs - 1), rel=0.05)
     with pytest.raises(ConfigError):
         sampled_kl_floor(counts[:1])
+
+
+def test_perfect_model_kl_matches_the_chi_square_limit():
+    """n events drawn from q: 2 n KL(p_hat || q) -> chi^2 with K - 1 degrees of freedom."""
+    q = np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 1.0], [3.0, 1.0, 2.0]])
+    n = 4000
+    assert perfect_model_kl(q, n, n_sim=2000, seed=3) == pytest.approx((q.size - 1) / (2 * n),
+                                                                       rel=0.05)
+    # more events, proportionally less
+    assert perfect_model_kl(q, 4 * n, n_sim=2000, seed=3) == pytest.approx(
+        (q.size - 1) / (8 * n), rel=0.05)
+    with pytest.raises(ConfigError, match="n_events"):
+        perfect_model_kl(q, 0)
+    with pytest.raises(ConfigError):
+        perfect_model_kl(np.zeros((3, 3)), 10)
+
+
+def test_seed_means_average_pressure_and_pool_events():
+    ds = synthetic_dataset(6, seed=5, replicate_groups=3, replicates=3, noise=0.05)
+    role = ds.role.copy()
+    role[ds.group == 0] = "holdout"
+    role[ds.group == 1] = "holdout"
+    group = ds.group.copy()
+    group[np.nonzero(ds.group == 1)[0][1:]] = 7  # group 1 keeps one run: not a mean
+    ds.role, ds.group = role, group
+    hist = ds.histogram.copy()
+    i0 = np.nonzero(ds.group == 0)[0]
+    hist[i0] = 0.0
+    for k, r in enumerate(i0):  # run k of group 0: all events in bin (k, k)
+        hist[r, k, k] = 1.0
+    ds.histogram = hist
+    ds.n_events = ds.n_events.copy()
+    ds.n_events[i0] = [100, 200, 700]
+    m = seed_means(ds, "holdout")
+    assert len(m) == 2 and list(m.group) == [0, 7]  # group 1 (one run) left out
+    np.testing.assert_allclose(m.pressure[0], ds.pressure[i0].mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(m.pressure_raw[0], ds.pressure_raw[i0].mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose([m.histogram[0, k, k] for k in range(3)], [0.1, 0.2, 0.7])
+    assert m.histogram[0].sum() == pytest.approx(1.0)
+    assert m.n_events[0] == 1000 and m.seed[0] == 3 and m.seed[1] == 2
+    assert list(m.role) == ["holdout", "holdout"]
+    np.testing.assert_array_equal(m.params[0], ds.params[i0[0]])
+    assert len(seed_means(ds, "replicate")) == 1  # group 2
+    assert len(seed_means(ds, "train")) == 0
+    with pytest.raises(ConfigError, match="role"):
+        seed_means(ds, "test")
 
 
 def test_noise_floor_reports_the_perfect_model_ratio_for_counted_histograms():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from calendaring.data.dataset import noise_floor, synthetic_dataset
+from calendaring.data.dataset import kl_divergence, noise_floor, seed_means, synthetic_dataset
 from surrogate.api import SurrogateModel
 from surrogate.baseline import PCAGPBaseline
 from surrogate.data import Normalisation
@@ -13,6 +13,7 @@ from surrogate.evaluate import (
     loss_table_markdown,
     pressure_errors,
     replicate_comparison,
+    seed_mean_comparison,
 )
 from surrogate.model import DualBranchMLP
 
@@ -85,3 +86,34 @@ def test_loss_table_markdown_has_the_three_splits():
          ("train", "val", "test")}
     md = loss_table_markdown(t)
     assert md.count("| 0.00100 | 0.2000 | 0.0607 |") == 3
+
+
+def _holdout_groups(ds, groups):
+    role = ds.role.copy()
+    role[np.isin(ds.group, groups)] = "holdout"
+    ds.role = role
+    return ds
+
+
+def test_seed_mean_floor_is_the_replicate_floor_over_the_seed_count():
+    """Equal groups of n seeds: the exact mean curve scores the per-point variance / n."""
+    ds = _holdout_groups(synthetic_dataset(10, seed=2, replicate_groups=3, replicates=4,
+                                           noise=0.05), [0, 1, 2])
+    m = _model(ds)
+    h = seed_mean_comparison(m, ds, kl_simulations=50)
+    nf = noise_floor(ds)
+    assert h["groups"] == 3 and h["runs_per_group"] == [4, 4, 4] and h["runs"] == 12
+    assert h["pressure_mse_normalised_floor"] == pytest.approx(
+        nf["pressure_mse_normalised"] / 4, rel=1e-9)
+    # the metrics are those of the model against the seed means
+    means = seed_means(ds)
+    pred = m.predict_unit(means.unit_params)
+    direct = pressure_errors(means.pressure, pred.pressure, m)
+    assert h["pressure_mse_normalised"] == pytest.approx(direct["pressure_mse_normalised"],
+                                                         rel=1e-12)
+    assert h["kl_model"] == pytest.approx(
+        float(np.mean(kl_divergence(means.histogram, pred.distribution))), rel=1e-12)
+    # 1500 pooled events on a smooth 900-bin map: a perfect model cannot score zero
+    assert 0 < h["kl_perfect"] < h["kl_model"]
+    assert h["meets"]["kl_over_perfect"] is False
+    assert seed_mean_comparison(m, synthetic_dataset(10, seed=2)) is None
