@@ -106,6 +106,9 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE")
     a.add_argument("--no-distribution", action="store_true",
                    help="calibrate on the pressure curve only (no centroid term)")
+    a.add_argument("--no-identifiability", action="store_true",
+                   help="skip the per-row loss profiles (and the coverage goal over the "
+                        "identifiable parameters)")
     a.add_argument("--seed", type=int, default=0)
     a.add_argument("--threads", type=integer(1), default=1, help="torch CPU threads")
     a.add_argument("--quiet", action="store_true")
@@ -296,12 +299,21 @@ def cmd_validate(args) -> int:
     model.space.check(fix)
     rep = validate_to_dir(model, ds, args.out, rows=args.rows, **_settings(args),
                           use_distribution=not args.no_distribution, fix=fix or None,
+                          identifiability=not args.no_identifiability,
                           progress=not args.quiet)
-    print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}")
+    ident = "identifiable" in rep
+    print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}{'CI width':>10s}"
+          + (f"{'identifiable':>14s}" if ident else ""))
     for name, p in rep["per_parameter"].items():
-        print(f"{name:<18s}{p['mae_unit_optimum']:>11.3f}{100 * p['coverage_ci90']:>14.0f}%")
-    print(f"{rep['n_rows']} rows; key coverage {rep['key_coverage']}; goal "
-          f"{'met' if rep['goal_met'] else 'not met'} ({rep['goal']})")
+        print(f"{name:<18s}{p['mae_unit_optimum']:>11.3f}{100 * p['coverage_ci90']:>14.0f}%"
+              f"{p['mean_ci90_width_unit']:>10.3f}"
+              + (f"{100 * p['identifiable_fraction']:>13.0f}%" if ident else ""))
+    print(f"{rep['n_rows']} rows ({rep['resumed_rows']} resumed); key coverage "
+          f"{rep['key_coverage']}; goal {'met' if rep['goal_met'] else 'not met'} "
+          f"({rep['goal']})")
+    if ident:
+        print(f"identifiable ({rep['identifiable_rule']}): {rep['identifiable']}; coverage "
+              f"goal over them {'met' if rep['identifiable_goal_met'] else 'not met'}")
     print(f"wrote {Path(args.out) / 'validation.json'}")
     return EXIT_OK
 

@@ -65,7 +65,7 @@ import numpy as np
 from calendaring import ConfigError
 from inverse.optimise import OptimiserConfig
 from inverse.posterior import PosteriorConfig
-from inverse.report import write_json
+from inverse.report import file_sha256, write_json
 
 FORMAT = "calendaring-refine"
 ROLE = "refine"
@@ -233,14 +233,6 @@ def _log(msg: str, progress: bool) -> None:
         print(f"[refine] {msg}", file=sys.stderr, flush=True)
 
 
-def _sha(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()[:16]
-
-
 def _target_digest(target) -> str:
     h = hashlib.sha256()
     for a in (target.depth, target.pressure, target.valid):
@@ -355,7 +347,7 @@ class Refinement:
         sigma0 = self.posterior.model_error_sigma or initial_model_error(m)
         self.sigma0 = float(sigma0)
         self.request = {
-            "model": str(self.model_path), "model_sha256": _sha(self.model_path),
+            "model": str(self.model_path), "model_sha256": file_sha256(self.model_path),
             "dataset": str(self.dataset_path), "dataset_fingerprint": d.fingerprint,
             "target": self.target_desc, "config": asdict(cfg), "dem_seed": self.dem_seed,
             "distinct_beds": self.distinct_beds,

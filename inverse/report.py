@@ -12,6 +12,7 @@ target curve), ``prediction``, ``optimiser``, ``restarts``, ``clusters``,
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -42,6 +43,15 @@ def write_json(path: str | Path, obj: dict) -> Path:
     if path.suffix.lower() != ".json":
         raise ConfigError("--out", str(path), "a path ending in .json")
     return _write_json(path, obj)
+
+
+def file_sha256(path: str | Path) -> str:
+    """The first 16 hex digits of a file's SHA-256 (identifies a model or dataset file)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()[:16]
 
 
 def read_result(path: str | Path) -> dict:
@@ -139,5 +149,5 @@ def format_table4(result: dict) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["FORMAT", "SCHEMA_VERSION", "TABLE4", "format_table4", "parameter_rows",
+__all__ = ["FORMAT", "SCHEMA_VERSION", "TABLE4", "file_sha256", "format_table4", "parameter_rows",
            "read_result", "write_json"]

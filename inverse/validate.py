@@ -5,12 +5,18 @@ list of rows) the row's smoothed pressure curve and its breakage histogram becom
 the surrogate is calibrated (two-phase optimiser, then the posterior) and compared with the
 row's true parameters. Reported per parameter: the recovery error of the optimum and of the
 posterior mean (unit-cube and physical, mean absolute and RMS), and the coverage of the 90 %
-credible intervals (the fraction of rows whose truth lies inside). The issue's target: d0 and
-phi inside their 90 % intervals in at least 80 % of the rows.
+credible intervals (the fraction of rows whose truth lies inside). With ``identifiability``
+each row also gets the slice loss profiles at its optimum
+(:func:`inverse.identifiability.loss_profiles`), and a parameter whose profile is not flat
+in at least half of the rows is called identifiable.
+
+Goals: d0 and phi inside their 90 % intervals in at least 80 % of the rows (``goal_met``),
+and the same for every identifiable parameter (``identifiable_goal_met``).
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -21,9 +27,10 @@ from calendaring import ConfigError
 from inverse.calibrate import calibrate_target
 from inverse.optimise import OptimiserConfig
 from inverse.posterior import PosteriorConfig
-from inverse.report import write_json
+from inverse.report import file_sha256, write_json
 from inverse.targets import Target, attach_distribution, resample_curve
 
+PARTIAL = "validation.partial.json"
 COVERAGE_GOAL = 0.8  # issue 7: d0 and phi inside their 90 % intervals >= 80 % of the time
 KEY_PARAMETERS = ("d0", "phi")
 
@@ -61,12 +68,18 @@ def select_rows(ds, rows=None, roles=("holdout",)) -> np.ndarray:
 
 def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfig | None = None,
              posterior: PosteriorConfig | None = None, use_distribution: bool = True,
-             fix=None, progress: bool = True) -> dict:
+             fix=None, identifiability: bool = True, progress: bool = True,
+             done: dict[int, dict] | None = None, on_row=None) -> dict:
     """Calibrate each selected row and score recovery and interval coverage.
 
     Returns a JSON-ready dict: ``rows`` (per row: truth, optimum, posterior mean and 90 %
-    interval per parameter, inside flags, fit error), ``per_parameter`` (mean absolute /
-    RMS error in unit and physical values, coverage), ``key_coverage`` and ``goal_met``.
+    interval per parameter, inside flags, fit error, the parameters with flat profiles),
+    ``per_parameter`` (mean absolute / RMS error in unit and physical values, coverage, the
+    fraction of rows where it is identifiable), ``key_coverage`` and ``goal_met``,
+    ``identifiable`` with ``identifiable_coverage`` and ``identifiable_goal_met``.
+
+    ``done``: records of rows already calibrated with the same settings (reused, not rerun);
+    ``on_row(record)`` is called after each new row (:func:`validate_to_dir` checkpoints).
     """
     space = model.space
     if list(ds.space.names) != list(space.names):
@@ -77,14 +90,20 @@ def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfi
     out_rows = []
     t0 = time.perf_counter()
     fixed = set(fix or {})
+    done = done or {}
     for n, i in enumerate(idx):
+        if int(i) in done:
+            out_rows.append(done[int(i)])
+            continue
         target = row_target(model, ds, int(i), use_distribution)
         oc = calibrate_target(model, target, optimiser=optimiser, posterior=posterior,
-                              identifiability=False, fix=fix)
+                              identifiability=identifiability, fix=fix)
         truth = np.asarray(ds.params[i], float)
         tu = space.to_unit(truth)
         rec = {"row": int(i), "run_id": str(ds.run_id[i]), "fit": oc.result["fit"],
                "loss": oc.result["loss"]["total"], "parameters": {}}
+        if identifiability:
+            rec["flat"] = list(oc.result["identifiability"]["profiles"]["flat"])
         for j, p in enumerate(oc.result["parameters"]):
             name = p["name"]
             if name in fixed:
@@ -97,6 +116,8 @@ def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfi
                 "ci90": s["ci90"], "ci90_unit": s["ci90_unit"],
                 "inside_ci90": bool(s["ci90_unit"][0] <= tu[j] <= s["ci90_unit"][1])}
         out_rows.append(rec)
+        if on_row is not None:
+            on_row(rec)
         if progress:
             el = time.perf_counter() - t0
             eta = el / (n + 1) * (len(idx) - n - 1)
@@ -119,12 +140,22 @@ def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfi
                      "coverage_ci90": float(np.mean([x["inside_ci90"] for x in r])),
                      "mean_ci90_width_unit": float(np.mean([x["ci90_unit"][1] -
                                                             x["ci90_unit"][0] for x in r]))}
+        if identifiability:
+            per[name]["identifiable_fraction"] = float(np.mean([name not in x["flat"]
+                                                                for x in out_rows]))
     key = {k: per[k]["coverage_ci90"] for k in KEY_PARAMETERS if k in per}
-    return {"rows": out_rows, "n_rows": len(out_rows), "per_parameter": per,
-            "key_coverage": key, "goal": f"coverage >= {COVERAGE_GOAL} for {KEY_PARAMETERS}",
-            "goal_met": bool(key and all(v >= COVERAGE_GOAL for v in key.values())),
-            "optimiser": optimiser.to_json(), "posterior": posterior.to_json(),
-            "seconds": time.perf_counter() - t0}
+    out = {"rows": out_rows, "n_rows": len(out_rows), "per_parameter": per,
+           "key_coverage": key, "goal": f"coverage >= {COVERAGE_GOAL} for {KEY_PARAMETERS}",
+           "goal_met": bool(key and all(v >= COVERAGE_GOAL for v in key.values()))}
+    if identifiability:
+        ident = [k for k, v in per.items() if v["identifiable_fraction"] >= 0.5]
+        cov = {k: per[k]["coverage_ci90"] for k in ident}
+        out.update({"identifiable": ident, "identifiable_coverage": cov,
+                    "identifiable_rule": "slice profile not flat in >= 50 % of the rows",
+                    "identifiable_goal_met": bool(all(v >= COVERAGE_GOAL
+                                                      for v in cov.values()))})
+    return out | {"optimiser": optimiser.to_json(), "posterior": posterior.to_json(),
+                  "seconds": time.perf_counter() - t0}
 
 
 def plot_validation(report: dict, path, space):
@@ -157,13 +188,45 @@ def plot_validation(report: dict, path, space):
     return path
 
 
+def _request(model, ds, kw: dict) -> dict:
+    """What makes a row's record reusable: the model file, the dataset and the settings."""
+    path = model.info.get("path") if hasattr(model, "info") else None
+    settings = {k: (v.to_json() if hasattr(v, "to_json") else v) for k, v in kw.items()
+                if k not in ("progress", "rows", "roles", "done", "on_row")}
+    req = {"model_sha256": file_sha256(path) if path and Path(path).is_file() else None,
+           "dataset_fingerprint": ds.fingerprint, "settings": settings}
+    return json.loads(json.dumps(req, default=str))
+
+
 def validate_to_dir(model, ds, out_dir, **kw) -> dict:
-    """:func:`validate`, then ``validation.json`` and ``validation.png`` in ``out_dir``."""
+    """:func:`validate`, then ``validation.json`` and ``validation.png`` in ``out_dir``.
+
+    Resumable: each calibrated row is appended to ``validation.partial.json``; a rerun with
+    the same model file, dataset and settings reuses those rows (other settings start
+    afresh). The partial file goes once ``validation.json`` is written."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rep = validate(model, ds, **kw)
+    partial = out_dir / PARTIAL
+    request = _request(model, ds, kw)
+    done: dict[int, dict] = {}
+    if partial.is_file():
+        old = json.loads(partial.read_text())
+        if old.get("request") == request:
+            done = {int(r["row"]): r for r in old.get("rows", [])}
+        elif kw.get("progress", True):
+            print(f"validate: {partial} holds other settings; starting afresh",
+                  file=sys.stderr, flush=True)
+    rows = list(done.values())
+
+    def keep(rec: dict) -> None:
+        rows.append(rec)
+        write_json(partial, {"request": request, "rows": rows})
+
+    rep = validate(model, ds, done=done, on_row=keep, **kw)
+    rep["resumed_rows"] = len(done)
     rep["plot"] = str(plot_validation(rep, out_dir / "validation.png", model.space))
     write_json(out_dir / "validation.json", rep)
+    partial.unlink(missing_ok=True)
     return rep
 
 

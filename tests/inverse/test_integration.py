@@ -84,3 +84,59 @@ def test_validate_on_held_out_rows(model_file, truth, tmp_path):
         np.testing.assert_allclose(truth_u, truth.unit_params[[0, 2], m.space.index(name)])
     assert (tmp_path / "val" / "validation.json").is_file()
     assert (tmp_path / "val" / "validation.png").is_file()
+    # identifiability per row and per parameter; the goal covers the identifiable ones
+    assert all("flat" in r for r in rep["rows"])
+    for name, p in rep["per_parameter"].items():
+        frac = np.mean([name not in r["flat"] for r in rep["rows"]])
+        assert p["identifiable_fraction"] == pytest.approx(frac)
+        assert (name in rep["identifiable"]) == (frac >= 0.5)
+    assert set(rep["identifiable_coverage"]) == set(rep["identifiable"])
+    assert not (tmp_path / "val" / "validation.partial.json").exists()
+
+
+def test_validate_resumes_from_its_partial_file(model_file, truth, tmp_path, monkeypatch):
+    import inverse.validate as v
+    from calendaring.data.dataset import read_dataset
+
+    m = surrogate.load(model_file)
+    ds = read_dataset(write_dataset(tmp_path / "holdout.h5", truth))
+    kw = {"optimiser": OptimiserConfig(iterations=40, restarts=1),
+          "posterior": PosteriorConfig(walkers=18, steps=80, burn=20), "progress": False}
+    real = v.calibrate_target
+    calls = []
+
+    def crash_on_third(*a, **k):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(v, "calibrate_target", crash_on_third)
+    with pytest.raises(KeyboardInterrupt):
+        validate_to_dir(m, ds, tmp_path / "val", rows=[0, 1, 2], **kw)
+    partial = tmp_path / "val" / "validation.partial.json"
+    assert partial.is_file()
+    (tmp_path / "val2").mkdir()
+    (tmp_path / "val2" / partial.name).write_text(partial.read_text())
+    calls.clear()
+    monkeypatch.setattr(v, "calibrate_target", real)
+    counted = []
+    monkeypatch.setattr(v, "calibrate_target", lambda *a, **k: counted.append(1) or real(*a, **k))
+    rep = validate_to_dir(m, ds, tmp_path / "val", rows=[0, 1, 2], **kw)
+    assert len(counted) == 1 and rep["resumed_rows"] == 2
+    assert [r["row"] for r in rep["rows"]] == [0, 1, 2]
+    # other settings: the partial rows are not reused
+    counted.clear()
+    rep2 = validate_to_dir(m, ds, tmp_path / "val2", rows=[0], identifiability=False, **kw)
+    assert len(counted) == 1 and rep2["resumed_rows"] == 0 and "identifiable" not in rep2
+
+
+def test_validate_cli_prints_coverage_and_identifiability(model_file, truth, tmp_path, capsys):
+    ds_path = write_dataset(tmp_path / "holdout.h5", truth)
+    rc = cli.main(["validate", "--model", str(model_file), "--dataset", str(ds_path), "--out",
+                   str(tmp_path / "v"), "--rows", "1", "--restarts", "1", "--iterations", "40",
+                   "--walkers", "18", "--steps", "60", "--burn", "20", "--quiet"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "identifiable" in out and "CI width" in out and "1 rows (0 resumed)" in out
+    assert (tmp_path / "v" / "validation.json").is_file()
