@@ -24,6 +24,7 @@ from calendaring import (
     PRESETS,
     ConfigError,
     ContractParser,
+    input_file,
     output_path,
     run_cli,
 )
@@ -58,6 +59,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--dataset", help="dataset HDF5 for the given-data cross-check")
     s.add_argument("--given-method", choices=("rbd_fast", "delta"), default="rbd_fast",
                    help="given-data estimator (delta is much slower)")
+    s.add_argument("--reference", help="an earlier sobol.json (e.g. of the other cell) to "
+                   "compare the rankings with")
     s.add_argument("--out-dir", help="output folder (default: <model>_sobol next to it)")
     s.add_argument("--quiet", action="store_true", help="no progress lines")
 
@@ -159,6 +162,16 @@ def cmd_sobol(args) -> int:
         ds = read_dataset(args.dataset)
     check_power_of_two(n)
     _check_model(args.model)
+    reference = None
+    if args.reference:
+        ref_path = input_file(args.reference, "--reference")
+        try:
+            reference = json.loads(ref_path.read_text())
+            reference["sobol"]["indices"]
+        except (ValueError, KeyError, TypeError):
+            raise ConfigError("--reference", str(args.reference),
+                              "a sobol.json written by 'analysis sobol'") from None
+        reference["path"] = str(ref_path)
     out = _out_dir(args.out_dir, args.model, "sobol")
     m = _load_model(args.model)
     if ds is not None and ds.space.names != m.space.names:
@@ -166,7 +179,7 @@ def cmd_sobol(args) -> int:
                           f"a dataset with the model's parameters {m.space.names}")
     res = sobol_study(m, out, n=n, n_min=n_min, seed=args.seed, tol=args.tol, dataset=ds,
                       given_method=args.given_method, spread_n=spread,
-                      progress=not args.quiet)
+                      progress=not args.quiet, reference=reference)
     _print_sobol(res)
     print(f"wrote {out / 'sobol.json'}")
     return EXIT_OK
@@ -181,6 +194,20 @@ def _print_sobol(res: dict) -> None:
     for o, d in s["indices"].items():
         for key in ("S1", "ST"):
             print(f"{o[:17]:17s} {key} " + " ".join(f"{v:8.3f}" for v in d[key]))
+    pc = res["paper_claims"]
+    print(f"paper (Fig. 10): d0 and phi the two largest ST in {pc['dominant_holds_in']}")
+    for o, c in pc["outputs"].items():
+        neg = ", ".join(f"{n} {v['verdict']} (ST {v['ST']:.3f} +- {v['ST_conf']:.3f})"
+                        for n, v in c["negligible"].items())
+        print(f"  {o}: ranking {' > '.join(c['ranking_by_ST'][:3])} ...; {neg}")
+    for o, c in res.get("given_data_check", {}).items():
+        if "agree" in c:
+            print(f"given data, {o}: top two S1 {c['given_data_top2_S1']} against the "
+                  f"surrogate's {c['surrogate_top2_S1']}: {'agree' if c['agree'] else 'differ'}")
+    for o, c in res.get("reference", {}).get("comparison", {}).items():
+        print(f"against the reference, {o}: Kendall tau {c['kendall_tau_ST']:.2f}, top two "
+              f"{c['top2']} vs {c['reference_top2']}, ST differ beyond the CIs: "
+              f"{sorted(c['differ']) or 'none'}")
 
 
 def cmd_trends(args) -> int:

@@ -22,6 +22,9 @@ Ishigami function (known indices) and used on the surrogate::
 - :func:`surrogate_model`: adapts a :mod:`surrogate` model (or one member) to the interface,
   with :func:`analysis.outputs.key_outputs` on its predictions.
 - :func:`plot_sobol`, :func:`plot_convergence`: Fig. 10 bar charts and the convergence plot.
+- :func:`paper_claims`, :func:`compare_to_reference`, :func:`given_data_check`: the paper's
+  Fig. 10 reading (d0 and phi dominant, gamma and R_t negligible), another study's
+  ranking (e.g. the other cell) and the raw runs' top two, checked on a result.
 - :func:`sobol_study`: all of the above into an output folder (``analysis sobol``).
 """
 
@@ -521,6 +524,97 @@ def dataset_given_data(ds, method: str = "rbd_fast", roles: Sequence[str] = ("tr
     return res
 
 
+# ---------------------------------------------------------------------- against the paper
+PAPER_FIG10 = {"dominant": ("d0", "phi"), "negligible": ("damage_constant", "truncation_ratio")}
+"""The paper's reading of Fig. 10 (section 3.3): d0 and phi dominate the outputs; gamma and
+the truncation ratio are negligible."""
+NEGLIGIBLE_ST = 0.05
+"""A total index whose whole 95 % interval lies below this is called negligible."""
+
+
+def _ranking(names, st) -> list[str]:
+    return [names[i] for i in np.argsort(-np.asarray(st, float), kind="stable")]
+
+
+def paper_claims(sobol: Mapping) -> dict:
+    """The paper's Fig. 10 claims checked on a ``SobolResult.to_json()`` dict, per output.
+
+    ``dominant``: holds when d0 and phi are the two largest total indices. ``negligible``
+    (gamma, truncation ratio): ``negligible`` when ``ST + ST_conf < NEGLIGIBLE_ST``, ``not
+    negligible`` when ``ST - ST_conf > NEGLIGIBLE_ST``, else ``not resolved``.
+    """
+    names = list(sobol["names"])
+    out = {"rule": f"dominant: {list(PAPER_FIG10['dominant'])} are the two largest ST; "
+                   f"negligible: ST + CI half-width < {NEGLIGIBLE_ST}", "outputs": {}}
+    held = 0
+    for o, d in sobol["indices"].items():
+        rank = _ranking(names, d["ST"])
+        top2 = set(rank[:2]) == set(PAPER_FIG10["dominant"])
+        held += top2
+        neg = {}
+        for name in PAPER_FIG10["negligible"]:
+            if name not in names:
+                continue
+            j = names.index(name)
+            st, c = float(d["ST"][j]), float(d["ST_conf"][j])
+            neg[name] = {"ST": st, "ST_conf": c,
+                         "verdict": "negligible" if st + c < NEGLIGIBLE_ST else
+                         "not negligible" if st - c > NEGLIGIBLE_ST else "not resolved"}
+        out["outputs"][o] = {"ranking_by_ST": rank,
+                             "rank_of": {n: rank.index(n) + 1 for n in PAPER_FIG10["dominant"]
+                                         if n in names},
+                             "dominant_holds": bool(top2), "negligible": neg}
+    out["dominant_holds_in"] = f"{held} of {len(out['outputs'])} outputs"
+    return out
+
+
+def compare_to_reference(sobol: Mapping, reference: Mapping) -> dict:
+    """Two Sobol results (e.g. 100 um against 30 um) per output: Kendall's tau between the
+    total indices, the top two of each, and the parameters whose ST differ by more than
+    the combined CI half-width (``sqrt(c1^2 + c2^2)``)."""
+    from scipy.stats import kendalltau
+
+    names = list(sobol["names"])
+    if list(reference["names"]) != names:
+        raise ConfigError("reference parameters", reference["names"], f"the same as {names}")
+    out = {}
+    for o, d in sobol["indices"].items():
+        r = reference["indices"].get(o)
+        if r is None:
+            continue
+        st, rst = np.asarray(d["ST"], float), np.asarray(r["ST"], float)
+        comb = np.hypot(np.asarray(d["ST_conf"], float), np.asarray(r["ST_conf"], float))
+        tau = kendalltau(st, rst).statistic
+        out[o] = {"kendall_tau_ST": float(tau), "top2": _ranking(names, st)[:2],
+                  "reference_top2": _ranking(names, rst)[:2],
+                  "same_top2": set(_ranking(names, st)[:2]) == set(_ranking(names, rst)[:2]),
+                  "differ": {n: {"ST": float(st[j]), "reference_ST": float(rst[j]),
+                                 "combined_conf": float(comb[j])}
+                             for j, n in enumerate(names) if abs(st[j] - rst[j]) > comb[j]}}
+    return out
+
+
+def given_data_check(sobol: Mapping, given: Mapping) -> dict:
+    """The surrogate's top two first-order indices against the given-data estimate from
+    the raw runs (the same estimand, S1), per output."""
+    names = list(sobol["names"])
+    out = {}
+    for o, d in sobol["indices"].items():
+        g = given["indices"].get(o, {})
+        if "S1" not in g:
+            out[o] = {"error": g.get("error", "no given-data estimate")}
+            continue
+        top = _ranking(names, d["S1"])[:2]
+        gtop = _ranking(names, g["S1"])[:2]
+        out[o] = {"surrogate_top2_S1": top, "given_data_top2_S1": gtop,
+                  "agree": set(top) == set(gtop),
+                  "given_data_S1": {n: [g["S1"][names.index(n)], g["S1_conf"][names.index(n)]]
+                                    for n in top},
+                  "surrogate_S1": {n: [d["S1"][names.index(n)], d["S1_conf"][names.index(n)]]
+                                   for n in top}}
+    return out
+
+
 # ---------------------------------------------------------------------- plots
 def plot_sobol(result: SobolResult, path: str | Path, symbols: Sequence[str] | None = None,
                title: str = "") -> Path:
@@ -581,14 +675,18 @@ def model_path(m) -> str | None:
 def sobol_study(m, out_dir: str | Path, n: int = 2**14, n_min: int = 256, seed: int = 0,
                 tol: float = CI_TOL, dataset=None, given_method: str = "rbd_fast",
                 spread_n: int | None = None, progress: bool = True,
-                batch_size: int = BATCH_SIZE) -> dict:
+                batch_size: int = BATCH_SIZE, reference: Mapping | None = None) -> dict:
     """The full sensitivity study of a surrogate into ``out_dir`` (``analysis sobol``).
 
     Writes ``sobol.json`` (indices at the last level, the convergence table, the ensemble
     spread, the given-data cross-check when ``dataset`` is given, wall times) and PNGs:
     ``sobol_indices.png`` (Fig. 10), ``sobol_convergence.png``. Returns the JSON dict.
     The convergence loop runs up to ``n`` and keeps going past convergence (so the final
-    indices are at the requested N); the table marks the first converged level.
+    indices are at the requested N); the table marks the first converged level. The JSON
+    also checks the paper's Fig. 10 claims (:func:`paper_claims`), the surrogate's top two
+    against the given-data estimate (:func:`given_data_check`) and, with ``reference`` (an
+    earlier ``sobol.json``, e.g. of another cell), the rankings against it
+    (:func:`compare_to_reference`).
     """
     from analysis.plots import atomic_write_json
 
@@ -644,6 +742,13 @@ def sobol_study(m, out_dir: str | Path, n: int = 2**14, n_min: int = 256, seed: 
            "wall_time_s": {"sobol_convergence": t_sobol, "ensemble_spread": t_spread}}
     if dataset is not None:
         out["given_data"] = dataset_given_data(dataset, given_method, seed=seed)
+    out["paper_claims"] = paper_claims(out["sobol"])
+    if "given_data" in out:
+        out["given_data_check"] = given_data_check(out["sobol"], out["given_data"])
+    if reference is not None:
+        out["reference"] = {"path": reference.get("path"),
+                            "comparison": compare_to_reference(out["sobol"],
+                                                               reference["sobol"])}
     symbols = space.symbols
     paths = [plot_sobol(res, out_dir / "sobol_indices.png", symbols),
              plot_convergence(rows, out_dir / "sobol_convergence.png", tol)]
@@ -658,20 +763,25 @@ def sobol_study(m, out_dir: str | Path, n: int = 2**14, n_min: int = 256, seed: 
 __all__ = [
     "CI_TOL",
     "GIVEN_DATA_METHODS",
+    "NEGLIGIBLE_ST",
+    "PAPER_FIG10",
     "Model",
     "SobolResult",
     "analyze_outputs",
     "bootstrap_spread",
     "check_power_of_two",
+    "compare_to_reference",
     "dataset_given_data",
     "ensemble_single_pass",
     "ensemble_spread",
     "evaluate",
+    "given_data_check",
     "given_data_indices",
     "ishigami",
     "ishigami_indices",
     "member_models",
     "model_path",
+    "paper_claims",
     "plot_convergence",
     "plot_sobol",
     "ranking_stable",

@@ -69,6 +69,17 @@ def test_sobol_and_trends_commands_write_outputs(tmp_path, fake_model, capsys):
     assert js["sobol"]["n"] == 256 and (out / "sobol_indices.png").exists()
     printed = capsys.readouterr().out
     assert "Sobol indices at N = 256" in printed and "peak_pressure" in printed
+    assert "paper (Fig. 10)" in printed
+    # against a reference study (itself: identical rankings)
+    assert main(["sobol", str(fake_model), "--n", "2**7", "--n-min", "2**7", "--spread-n",
+                 "128", "--out-dir", str(tmp_path / "s2"), "--reference",
+                 str(out / "sobol.json"), "--quiet"]) == 0
+    js2 = json.loads((tmp_path / "s2" / "sobol.json").read_text())
+    assert set(js2["reference"]["comparison"]) == set(js["sobol"]["indices"])
+    assert "against the reference" in capsys.readouterr().out
+    assert main(["sobol", str(fake_model), "--n", "2**7", "--n-min", "2**7", "--reference",
+                 str(res_missing := tmp_path / "none.json"), "--quiet"]) == 2
+    assert "--reference" in capsys.readouterr().err and not res_missing.exists()
     res = tmp_path / "RESULT.json"
     res.write_text(json.dumps({"parameters": {"d0": 6e-6}}))
     assert main(["trends", str(fake_model), "--at", str(res), "--points", "5",

@@ -16,11 +16,14 @@ import pytest
 from analysis.outputs import OUTPUTS, key_outputs, outputs_of_dataset
 from analysis.sensitivity import (
     check_power_of_two,
+    compare_to_reference,
     dataset_given_data,
     ensemble_spread,
+    given_data_check,
     ishigami,
     ishigami_indices,
     member_models,
+    paper_claims,
     sobol_convergence,
     sobol_indices,
     sobol_study,
@@ -198,6 +201,8 @@ def test_sobol_study_writes_json_and_figures(tmp_path):
     for f in ("sobol_indices.png", "sobol_convergence.png"):
         assert (tmp_path / f).stat().st_size > 1000
     assert res["sobol"]["ranking_by_ST"]["diameter_centroid"][0] == "sigma_e"
+    assert set(js["paper_claims"]["outputs"]) == set(OUTPUTS)
+    assert set(js["given_data_check"]) == set(OUTPUTS)
     assert not list(tmp_path.glob(".*tmp*"))  # no temporary files left
 
 
@@ -256,3 +261,44 @@ def test_sobol_on_a_tiny_trained_surrogate(tmp_path):
                                    atol=1e-4)
         np.testing.assert_allclose(js["ensemble_spread"]["indices"][o]["S1"]["members"],
                                    sp["indices"][o]["S1"]["members"], atol=1e-4)
+
+
+# ---------------------------------------------------------------------- against the paper
+def _sobol_json(st, conf=0.01, s1=None):
+    names = PAPER_SPACE.names
+    st = np.asarray(st, float)
+    s1 = st if s1 is None else np.asarray(s1, float)
+    d = {"S1": s1.tolist(), "S1_conf": [conf] * 8, "ST": st.tolist(), "ST_conf": [conf] * 8}
+    return {"names": names, "indices": {"peak_pressure": d, "diameter_centroid": d}}
+
+
+def test_paper_claims_dominant_and_negligible_verdicts():
+    # order of PAPER_SPACE: gamma, E_inf, d0, phi, sigma_E, A, b', R_t
+    res = paper_claims(_sobol_json([0.01, 0.1, 0.5, 0.3, 0.05, 0.02, 0.02, 0.048]))
+    c = res["outputs"]["peak_pressure"]
+    assert c["dominant_holds"] and c["rank_of"] == {"d0": 1, "phi": 2}
+    assert c["negligible"]["damage_constant"]["verdict"] == "negligible"  # 0.02 < 0.05
+    assert c["negligible"]["truncation_ratio"]["verdict"] == "not resolved"  # 0.048 +- 0.01
+    assert res["dominant_holds_in"] == "2 of 2 outputs"
+    res = paper_claims(_sobol_json([0.2, 0.6, 0.5, 0.1, 0.0, 0.0, 0.0, 0.0]))
+    c = res["outputs"]["peak_pressure"]
+    assert not c["dominant_holds"] and c["rank_of"] == {"d0": 2, "phi": 4}
+    assert c["negligible"]["damage_constant"]["verdict"] == "not negligible"
+
+
+def test_compare_to_reference_and_given_data_check():
+    a = _sobol_json([0.01, 0.1, 0.5, 0.3, 0.05, 0.02, 0.02, 0.0])
+    same = compare_to_reference(a, a)["peak_pressure"]
+    assert same["kendall_tau_ST"] == pytest.approx(1.0) and same["differ"] == {}
+    b = _sobol_json([0.01, 0.1, 0.3, 0.5, 0.05, 0.02, 0.02, 0.0])  # d0 and phi swapped
+    c = compare_to_reference(a, b)["peak_pressure"]
+    assert c["same_top2"] and c["top2"] == ["d0", "phi"] and c["reference_top2"] == ["phi", "d0"]
+    assert set(c["differ"]) == {"d0", "phi"} and c["kendall_tau_ST"] < 1
+    with pytest.raises(ConfigError):
+        compare_to_reference(a, {**b, "names": list(reversed(PAPER_SPACE.names))})
+    given = {"indices": {"peak_pressure": {"S1": [0, 0.6, 0.3, 0, 0, 0, 0, 0],
+                                           "S1_conf": [0.05] * 8},
+                         "diameter_centroid": {"error": "3 usable rows"}}}
+    g = given_data_check(a, given)
+    assert g["peak_pressure"]["given_data_top2_S1"] == ["e_inf", "d0"]
+    assert not g["peak_pressure"]["agree"] and "error" in g["diameter_centroid"]
