@@ -53,6 +53,8 @@ CONF_LEVEL = 0.95
 NUM_RESAMPLES = 100
 BATCH_SIZE = 8192
 GIVEN_DATA_METHODS = ("delta", "rbd_fast")
+RBD_HARMONICS = 10
+"""Harmonics M of the RBD-FAST estimator (SALib's default)."""
 
 
 # ---------------------------------------------------------------------- helpers
@@ -478,9 +480,12 @@ def given_data_indices(x_unit, y: Mapping[str, np.ndarray], names: Sequence[str]
     for o, vals in y.items():
         vals = np.asarray(vals, dtype=float)
         ok = np.isfinite(vals)
-        if ok.sum() < 2 * len(names) + 2:
+        # rbd_fast's bootstrap halves the rows and its bias correction divides by
+        # 1 - 2 M / rows: it needs more than 4 M rows (M = RBD_HARMONICS)
+        need = 2 * len(names) + 2 if method == "delta" else 4 * RBD_HARMONICS + 2
+        if ok.sum() < need:
             out["indices"][o] = {"error": f"{int(ok.sum())} usable rows (need at least "
-                                          f"{2 * len(names) + 2})", "rows": int(ok.sum())}
+                                          f"{need})", "rows": int(ok.sum())}
             continue
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -498,8 +503,8 @@ def given_data_indices(x_unit, y: Mapping[str, np.ndarray], names: Sequence[str]
             else:
                 from SALib.analyze import rbd_fast
 
-                r = rbd_fast.analyze(problem, x[ok], vals[ok], num_resamples=num_resamples,
-                                     seed=seed)
+                r = rbd_fast.analyze(problem, x[ok], vals[ok], M=RBD_HARMONICS,
+                                     num_resamples=num_resamples, seed=seed)
                 keys = ("S1", "S1_conf")
         out["indices"][o] = {k: [float(v) for v in np.asarray(r[k])] for k in keys}
         out["indices"][o]["rows"] = int(ok.sum())

@@ -44,7 +44,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True, parser_class=ContractParser)
     c = sub.add_parser("calibrate", help="infer the breakage parameters from a pressure curve")
     c.add_argument("--model", required=True, help="surrogate checkpoint (MODEL.pt)")
-    c.add_argument("--target", required=True, help="CURVE.csv (units in the header) or RUN.h5")
+    tg = c.add_mutually_exclusive_group(required=True)
+    tg.add_argument("--target", help="CURVE.csv (units in the header) or RUN.h5")
+    tg.add_argument("--target-row", type=integer(0),
+                    help="a row of --dataset as the target (its smoothed curve and breakage "
+                         "histogram; its true parameters are reported beside the result)")
+    c.add_argument("--dataset", help="DATASET.h5 for --target-row")
     c.add_argument("--out", required=True, help="result JSON to write")
     c.add_argument("--restarts", type=int, default=None,
                    help=f"Sobol-started restarts (default {DEFAULT_RESTARTS}; "
@@ -188,6 +193,34 @@ def _centroids(s: str | None):
     return vals
 
 
+def _row_target(args, model):
+    """``--target-row`` of ``--dataset``: the row's target and its true parameters."""
+    from calendaring import read_dataset
+    from inverse.validate import row_target
+
+    if not args.dataset:
+        raise ConfigError("--dataset", None, "a DATASET.h5 with --target-row")
+    if args.centroids:
+        raise ConfigError("--centroids", args.centroids, "not with --target-row (the row's "
+                          "own histogram gives them)")
+    ds = read_dataset(input_file(args.dataset, "--dataset"))
+    if list(ds.space.names) != list(model.space.names):
+        raise ConfigError("--dataset", args.dataset, f"the model's parameters "
+                          f"{model.space.names}")
+    i = int(args.target_row)
+    if i >= len(ds):
+        raise ConfigError("--target-row", i, f"a row index in [0, {len(ds) - 1}]")
+    trained = {str(x) for part in model.info.get("split", {}).values() for x in part}
+    if str(ds.run_id[i]) in trained:
+        print(f"warning: row {i} ({ds.run_id[i]}) is one the model trained on",
+              file=sys.stderr)
+    target = row_target(model, ds, i)
+    truth = {"row": i, "run_id": str(ds.run_id[i]), "role": str(ds.role[i]),
+             "seed": int(ds.seed[i]), "parameters": ds.space.as_dict(ds.params[i]),
+             "parameters_unit": ds.unit_params[i].tolist()}
+    return target, truth
+
+
 def _load_model(path: str):
     p = Path(path)
     if not p.is_file():
@@ -217,7 +250,13 @@ def cmd_calibrate(args) -> int:
                            correlation_length=args.correlation_length) if args.posterior else None
     model = _load_model(args.model)
     model.space.check(fix)
-    target = load_target(args.target, model, _centroids(args.centroids))
+    truth = None
+    if args.target_row is not None:
+        target, truth = _row_target(args, model)
+    else:
+        if args.dataset:
+            raise ConfigError("--dataset", args.dataset, "given only with --target-row")
+        target = load_target(args.target, model, _centroids(args.centroids))
     progress = not args.quiet
     if progress:
         print(f"target: {target.source}, {target.n_valid} of {len(target.depth)} model depths"
@@ -227,6 +266,8 @@ def cmd_calibrate(args) -> int:
                           profile_mode=args.profiles if args.profiles != "none" else "slice",
                           progress=progress, model_path=args.model)
     res = oc.result
+    if truth is not None:
+        res["truth"] = truth
     if not args.no_plots:
         stem = out.with_suffix("")
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -249,6 +290,9 @@ def cmd_calibrate(args) -> int:
         res["plots"] = plots
     write_json(out, res)
     print(format_table4(res))
+    if truth is not None:
+        print(f"truth ({truth['role']} row {truth['row']}, {truth['run_id']}): "
+              + ", ".join(f"{k} {v:.4g}" for k, v in truth["parameters"].items()))
     print(f"wrote {out}")
     return EXIT_OK
 

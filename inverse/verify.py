@@ -143,8 +143,10 @@ def verify(result_path: str | Path, preset: str = "quick", seeds: int = 1, draws
                        "error": curve_error(target, p, covered)})
     opt = [c for c in curves if c["kind"] == "optimum"]
     if opt:
-        mean = np.nanmean(np.array([c["pressure_Pa"] for c in opt], float), axis=0)
-        cov = np.isfinite(mean)
+        runs = np.array([c["pressure_Pa"] for c in opt], float)
+        cov = np.isfinite(runs).any(axis=0)  # depths some run reached
+        mean = np.full(runs.shape[1], np.nan)
+        mean[cov] = np.nanmean(runs[:, cov], axis=0)
         summary = curve_error(target, mean, cov)
     else:
         summary = {}

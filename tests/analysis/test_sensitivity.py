@@ -215,6 +215,9 @@ def test_given_data_cross_check_on_dataset_runs():
     assert np.argmax(s1) == IPHI and s1[IPHI] > 0.7
     with pytest.raises(ConfigError, match="method"):
         dataset_given_data(ds, "morris")
+    # 40 rows: RBD-FAST's halved bootstrap would divide by zero; reported, not raised
+    small = dataset_given_data(synthetic_dataset(n=40, seed=5), "rbd_fast", seed=0)
+    assert all("need at least 42" in v["error"] for v in small["indices"].values())
 
 
 # ---------------------------------------------------------------------- real surrogate

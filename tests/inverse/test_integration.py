@@ -140,3 +140,25 @@ def test_validate_cli_prints_coverage_and_identifiability(model_file, truth, tmp
     out = capsys.readouterr().out
     assert "identifiable" in out and "CI width" in out and "1 rows (0 resumed)" in out
     assert (tmp_path / "v" / "validation.json").is_file()
+
+
+def test_calibrate_on_a_dataset_row(model_file, truth, tmp_path, capsys):
+    ds_path = write_dataset(tmp_path / "holdout.h5", truth)
+    out = tmp_path / "row.json"
+    rc = cli.main(["calibrate", "--model", str(model_file), "--target-row", "2", "--dataset",
+                   str(ds_path), "--out", str(out), "--restarts", "1", "--iterations", "60",
+                   "--no-plots", "--profiles", "none", "--quiet"])
+    assert rc == 0
+    res = read_result(out)
+    assert res["truth"]["row"] == 2 and res["truth"]["role"] == "holdout"
+    np.testing.assert_allclose(res["truth"]["parameters_unit"], truth.unit_params[2])
+    np.testing.assert_allclose(res["target"]["pressure_Pa"], truth.pressure[2], rtol=1e-12)
+    assert "truth (holdout row 2" in capsys.readouterr().out
+    # --target-row needs --dataset; --dataset alone is refused; a row past the end too
+    for argv, key in ((["--target-row", "1"], "--dataset"),
+                      (["--target", "x.csv", "--dataset", str(ds_path)], "--dataset"),
+                      (["--target-row", "9", "--dataset", str(ds_path)], "--target-row")):
+        rc = cli.main(["calibrate", "--model", str(model_file), "--out",
+                       str(tmp_path / "bad.json"), "--quiet", *argv])
+        assert rc == 2 and key in capsys.readouterr().err
+        assert not (tmp_path / "bad.json").exists()

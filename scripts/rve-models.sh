@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# The surrogate, calibration and Sobol figures on the representative-volume dataset (issue
+# 23, items 1-3): the paper's MLP and a 5-member ensemble; their errors against the
+# held-out seed means with the PCA + GP baseline and repeated K-fold CV; the learning
+# curve; `inverse validate` on every held-out seed with the ensemble's measured error; the
+# Sobol study against the paper's Fig. 10, the 30 um study (docs/results/sobol-30um.json)
+# and the given-data estimate; one calibration of a held-out seed verified by the DEM.
+# Each step is skipped when its output exists (rerun to resume; delete an output to redo
+# it). Models and reports go to OUT (default models/rve, git-ignored).
+#   bash scripts/rve-models.sh [DATASET] [OUT] [PRESET]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA=${1:-data/rve.h5}
+OUT=${2:-models/rve}
+PRESET=${3:-rve}
+. .venv/bin/activate
+mkdir -p "$OUT"
+t0=$SECONDS
+step() { echo "[rve-models] $1 ($((SECONDS - t0)) s)"; }
+
+step "train: the paper's MLP and a 5-member ensemble"
+[ -f "$OUT/mlp.pt" ] || surrogate train "$DATA" --out "$OUT/mlp.pt" --seed 0 --quiet \
+    | tee "$OUT/train.txt"
+[ -f "$OUT/ensemble.pt" ] || surrogate train "$DATA" --out "$OUT/ensemble.pt" --ensemble 5 \
+    --seed 0 --quiet | tee "$OUT/train-ensemble.txt"
+
+step "evaluate: test split, held-out seed means, replicates, baseline, 5x2 CV"
+[ -f "$OUT/mlp_eval/metrics.json" ] || surrogate evaluate "$OUT/mlp.pt" "$DATA" \
+    --out-dir "$OUT/mlp_eval" --folds 5 --repeats 2 --quiet | tee "$OUT/evaluate.txt"
+[ -f "$OUT/ensemble_eval/metrics.json" ] || surrogate evaluate "$OUT/ensemble.pt" "$DATA" \
+    --out-dir "$OUT/ensemble_eval" --folds 0 --no-baseline --quiet \
+    | tee "$OUT/evaluate-ensemble.txt"
+
+step "learning curve on the held-out seed means"
+surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve" --repeats 3 --quiet \
+    | tee "$OUT/learning-curve.txt"
+
+# the surrogate's own error in the likelihood: the ensemble's test RMSE (normalised units;
+# single runs, so it holds the run-to-run scatter a measured curve has too)
+ERR=$(python - "$OUT/ensemble_eval" <<'PY'
+import json, math, sys
+from pathlib import Path
+m = json.loads((Path(sys.argv[1]) / "metrics.json").read_text())
+print(f"{math.sqrt(m['metrics']['test']['pressure']['pressure_mse_normalised']):.4f}")
+PY
+)
+step "validate every held-out seed (model error sigma $ERR, normalised)"
+[ -f "$OUT/validate/validation.json" ] || inverse validate --model "$OUT/ensemble.pt" \
+    --dataset "$DATA" --out "$OUT/validate" --model-error "$ERR" --quiet \
+    | tee "$OUT/validate.txt"
+
+step "Sobol indices (N = 2^15) against Fig. 10, the 30 um study and the raw runs"
+REF=()
+[ -f docs/results/sobol-30um.json ] && REF=(--reference docs/results/sobol-30um.json)
+[ -f "$OUT/sobol/sobol.json" ] || analysis sobol "$OUT/ensemble.pt" --n 2**15 \
+    --dataset "$DATA" "${REF[@]}" --out-dir "$OUT/sobol" --quiet | tee "$OUT/sobol.txt"
+
+step "one held-out seed calibrated, then the DEM run at the optimum (2 new seeds)"
+ROW=$(python - "$DATA" <<'PY'
+import sys
+import numpy as np
+from calendaring import read_dataset
+ds = read_dataset(sys.argv[1])
+print(int(np.nonzero(ds.role == "holdout")[0][0]))
+PY
+)
+mkdir -p "$OUT/verify"
+[ -f "$OUT/verify/result.json" ] || inverse calibrate --model "$OUT/ensemble.pt" \
+    --target-row "$ROW" --dataset "$DATA" --posterior --model-error "$ERR" \
+    --out "$OUT/verify/result.json" --quiet | tee "$OUT/calibrate.txt"
+SEED=$(python - "$DATA" <<'PY'
+import sys
+from calendaring import read_dataset
+print(int(read_dataset(sys.argv[1]).seed.max()) + 1)  # beds no dataset run used
+PY
+)
+[ -f "$OUT/verify/verify.json" ] || inverse verify "$OUT/verify/result.json" \
+    --preset "$PRESET" --seeds 2 --first-seed "$SEED" --out-dir "$OUT/verify" \
+    | tee "$OUT/verify.txt"
+step "done; outputs in $OUT"
