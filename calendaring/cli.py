@@ -106,6 +106,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed-per-row", action="store_true",
                    help="each design row its own seed (seed + row x replicates + replicate): "
                         "every run on a bed of its own")
+    s.add_argument("--beds", type=integer(1, 10**6),
+                   help="the rows take turns over this many seeds (seed + (row mod K) x "
+                        "replicates + replicate): K settled beds for the whole design")
     s.add_argument("--design-seed", type=integer(0, SEED_MAX),
                    help="seed of the design (default --seed)")
     s.add_argument("--replicates", type=integer(1, 10**6), default=1,
@@ -246,7 +249,7 @@ def cmd_sweep(args) -> int:
     source = f"preset:{args.preset}" if args.preset else str(Path(args.config).resolve())
     opt = SweepOptions(source=source, out=out, design=args.design, n=args.n, seed=args.seed,
                        design_seed=args.design_seed, replicates=args.replicates,
-                       seed_per_row=args.seed_per_row,
+                       seed_per_row=args.seed_per_row, beds=args.beds or 0,
                        role=args.role, overrides=dict(parse_override(s) for s in args.set),
                        workers=args.workers, threads_per_run=args.threads_per_run,
                        scheduler=args.scheduler, max_attempts=args.max_attempts,

@@ -129,13 +129,18 @@ def packing_key(cfg: SimConfig) -> str:
 
 def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, seed: int,
          replicates: int, role: str, space: ParameterSpace = PAPER_SPACE,
-         seed_per_row: bool = False) -> tuple[np.ndarray, str, list[RunEntry]]:
+         seed_per_row: bool = False, beds: int = 0
+         ) -> tuple[np.ndarray, str, list[RunEntry]]:
     """The design rows, their label and the run entries of one sweep invocation. The runs
     of a row take seeds ``seed``, ``seed + 1``, ... (one per replicate); with
     ``seed_per_row`` each row has its own: ``seed + row x replicates + replicate`` (every
-    run on a bed of its own)."""
+    run on a bed of its own); with ``beds = K`` the rows take turns over K beds:
+    ``seed + (row mod K) x replicates + replicate`` (a model trained on them learns the
+    mean over K beds, not one bed's deviation, for K settlings only)."""
     if role not in ROLES:
         raise ConfigError("--role", role, f"one of {ROLES}")
+    if beds < 0 or (beds and seed_per_row):
+        raise ConfigError("--beds", beds, "an integer >= 1, and not with --seed-per-row")
     if replicates < 1:
         raise ConfigError("--replicates", replicates, ">= 1")
     if design in DESIGNS and design not in ("reference",) and n < 1:
@@ -148,7 +153,8 @@ def plan(source: str, overrides: dict, design: str, n: int, design_seed: int, se
     for i, row in enumerate(x):
         params = space.as_dict(row)
         for r in range(replicates):
-            s = seed + (i * replicates if seed_per_row else 0) + r
+            turn = i if seed_per_row else (i % beds if beds else 0)
+            s = seed + turn * replicates + r
             cfg = run_config(base, params, s)
             h = hashlib.sha256(config_json(cfg).encode()).hexdigest()[:10]
             run_id = f"{role}-{label}-{i:04d}-s{s}-{h}"
@@ -355,6 +361,7 @@ class SweepOptions:
     gpu: bool = False  # ask each task for one "GPU" worker resource
     progress: bool = True
     seed_per_row: bool = False  # each design row its own seed (bed), see plan()
+    beds: int = 0  # rows take turns over this many seeds (beds), see plan(); 0: off
 
 
 def sweep(opt: SweepOptions, task=None, pack=None) -> dict[str, RunEntry]:
@@ -369,7 +376,8 @@ def sweep(opt: SweepOptions, task=None, pack=None) -> dict[str, RunEntry]:
     out = Path(opt.out)
     dseed = opt.seed if opt.design_seed is None else opt.design_seed
     x, label, planned = plan(opt.source, opt.overrides, opt.design, opt.n, dseed, opt.seed,
-                             opt.replicates, opt.role, seed_per_row=opt.seed_per_row)
+                             opt.replicates, opt.role, seed_per_row=opt.seed_per_row,
+                             beds=opt.beds)
     task = task or run_task
     with _folder_lock(out):
         for sub in ("designs", "packings", "runs", "digests", "logs"):

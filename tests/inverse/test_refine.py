@@ -222,6 +222,12 @@ def test_sweep_plan_gives_each_row_its_own_seed_on_request():
     assert [e.seed for e in same] == [10, 11] * 3
     assert [e.seed for e in own] == [10, 11, 12, 13, 14, 15]
     assert len({e.packing for e in own}) == 6 and len({e.packing for e in same}) == 2
+    _, _, turns = plan("preset:tiny", {}, "lhs", 5, 0, 10, 1, "train", beds=2)
+    assert [e.seed for e in turns] == [10, 11, 10, 11, 10]
+    _, _, turns = plan("preset:tiny", {}, "lhs", 3, 0, 10, 2, "train", beds=2)
+    assert [e.seed for e in turns] == [10, 11, 12, 13, 10, 11]
+    with pytest.raises(ConfigError, match="--beds"):
+        plan("preset:tiny", {}, "lhs", 3, 0, 10, 1, "train", seed_per_row=True, beds=2)
 
 
 def test_a_twin_must_be_a_row_the_model_never_trained_on(setup, tmp_path):
