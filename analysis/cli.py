@@ -116,6 +116,9 @@ def _parser() -> argparse.ArgumentParser:
     c.add_argument("--no-microstructure", action="store_true",
                    help="skip porosity / tortuosity / D_eff")
     c.add_argument("--voxels-per-diameter", type=float, help="microstructure resolution")
+    c.add_argument("--initial-transport", choices=("all", "R1", "none"), default="all",
+                   help="whose snapshot nearest 0 um is analysed besides the final one: "
+                        "every run's (default), R1's only (R0 shares its packing), none")
     c.add_argument("--device", default="cpu", help="torch device for TauFactor")
     c.add_argument("--quiet", action="store_true")
     return ap
@@ -323,7 +326,7 @@ def cmd_compare(args) -> int:
         micro_kw["voxels_per_diameter"] = args.voxels_per_diameter
     kw = dict(preset=args.preset, studies=studies, extra_sets=args.set, jobs=args.jobs,
               micro=not args.no_microstructure, micro_kw=micro_kw, timeout=args.timeout,
-              progress=not args.quiet)
+              progress=not args.quiet, initial=args.initial_transport)
     if args.seeds:
         from analysis.compare import compare_seeds
 

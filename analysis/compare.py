@@ -45,6 +45,7 @@ import numpy as np
 from calendaring import PRESETS, ConfigError, format_override
 
 STUDIES = ("r0r1", "psd")
+INITIAL_CHOICES = ("all", "R1", "none")
 PAPER_FINAL_DEPTH = 19.5e-6
 """The paper's largest calendering depth [m] (Table 5 runs, Fig. 13)."""
 
@@ -426,7 +427,7 @@ def plot_psd(diams: dict[str, np.ndarray], path: Path, title: str) -> Path:
 def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] = STUDIES,
             seed: int = 0, extra_sets: Sequence[str] = (), jobs: int = 1,
             micro: bool = True, micro_kw: dict | None = None, timeout: float | None = None,
-            progress: bool = True) -> dict:
+            progress: bool = True, initial: str = "all") -> dict:
     """Run (or resume) the studies and write ``compare.json`` and PNGs into ``out_dir``.
 
     Args:
@@ -439,6 +440,10 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
         micro: analyse the microstructure at the snapshots nearest 0 and 19.5 um.
         micro_kw: keyword arguments of ``analyse_run`` (device, voxels_per_diameter, ...).
         timeout: seconds allowed per run (None: no limit).
+        initial: whose snapshot nearest 0 um is analysed too: ``"all"`` the runs',
+            ``"R1"`` the baseline's only (R0 starts from R1's packing; the paper's claims
+            are about the final state), ``"none"``. At the representative volume a
+            snapshot costs minutes, so this halves the study.
 
     Returns:
         The report (also in ``compare.json``): ``runs`` (status of each), ``failures``,
@@ -450,6 +455,8 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
 
     if int(jobs) < 1:
         raise ConfigError("--jobs", jobs, "an integer >= 1")
+    if initial not in INITIAL_CHOICES:
+        raise ConfigError("--initial-transport", initial, f"one of {INITIAL_CHOICES}")
     for s in extra_sets:
         if "=" not in str(s):
             raise ConfigError("--set", s, "the form KEY=VALUE")
@@ -477,7 +484,7 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
     with ThreadPoolExecutor(max_workers=int(jobs)) as pool:
         statuses = list(pool.map(go, cases))
     ok = {st["name"]: read_run(st["file"]) for st in statuses if st["status"] != "failed"}
-    report = {"preset": preset, "seed": seed, "studies": list(studies),
+    report = {"preset": preset, "seed": seed, "studies": list(studies), "initial": initial,
               "extra_sets": list(extra_sets),
               "units": "SI (m, Pa, N); tortuosity, D_eff (relative) and porosity dimensionless",
               "runs": [{**st, "description": c.description, "studies": c.studies,
@@ -495,6 +502,8 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
         report["microstructure"] = {}
         for n, r in ok.items():
             snaps = target_snapshots(r)
+            if initial == "none" or (initial == "R1" and n != "R1"):
+                snaps = snaps[1:] or snaps  # the final one (a run of one snapshot keeps it)
             cache = runs_dir / f"{n}.microstructure.json"
             key = {"snapshots": snaps, "settings": {k: mk[k] for k in sorted(mk)},
                    "run_config_hash": r.info.get("config_hash"), "created": r.created}
@@ -605,14 +614,15 @@ def _stats(values) -> dict:
 
 def seed_metrics(report: dict) -> dict[str, dict[str, float | None]]:
     """Per case of one seed's report: pressure, events, and porosity / tortuosity / D_eff
-    at the first and the last analysed depth (``initial_*``, ``final_*``)."""
+    at the first and the last analysed depth (``initial_*``, ``final_*``; ``initial_*``
+    None when only one depth was analysed)."""
     out = {}
     for name, s in (report.get("summaries") or {}).items():
         row = {k: s.get(k) for k in SEED_METRICS}
         table = ((report.get("microstructure") or {}).get(name) or {}).get("table") or []
         rows = sorted((r for r in table if r.get("depth_m") is not None),
                       key=lambda r: r["depth_m"])
-        for tag, r in (("initial", rows[0] if rows else None),
+        for tag, r in (("initial", rows[0] if len(rows) >= 2 else None),
                        ("final", rows[-1] if rows else None)):
             for k in MICRO_METRICS:
                 row[f"{tag}_{k}"] = None if r is None else r.get(k)
@@ -733,6 +743,7 @@ def _am_diameters(rec) -> np.ndarray:
     return 2 * sn.radius[sn.material == rec.config.material_names.index("AM")]
 
 
-__all__ = ["CLAIMS", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case", "compare",
+__all__ = ["CLAIMS", "INITIAL_CHOICES", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case",
+           "compare",
            "compare_seeds", "execute", "plan", "plot_seeds", "pool_seeds", "run_command",
            "run_summary", "seed_metrics", "target_snapshots", "truncation_sigmas"]

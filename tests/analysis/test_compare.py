@@ -159,6 +159,18 @@ def test_r0_r1_tiny_microstructure_table_and_cache(tiny_r0r1, monkeypatch):
     rep2 = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
                    micro=True, micro_kw={"voxels_per_diameter": 3.0}, progress=False)
     assert calls == [] and rep2["microstructure"]["R0"]["cached"]
+    # only R1's initial state (R0 starts from its packing): R0 analysed at the end only
+    rep3 = compare(out, preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
+                   micro=True, micro_kw={"voxels_per_diameter": 3.0}, progress=False,
+                   initial="R1")
+    assert calls[0][:2] == ("R0.h5", [1]) and len(calls) == 1 and rep3["initial"] == "R1"
+    from analysis.compare import seed_metrics
+
+    m = seed_metrics(rep3)
+    assert m["R0"]["initial_tortuosity"] is None and m["R0"]["final_tortuosity"] == 2.5
+    assert m["R1"]["initial_tortuosity"] == 1.5
+    with pytest.raises(ConfigError, match="--initial-transport"):
+        compare(out, preset="tiny", studies=["r0r1"], initial="some", progress=False)
 
 
 def _fake_report(seed: int, values: dict[str, tuple[float, float, float]]) -> dict:
