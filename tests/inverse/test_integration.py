@@ -86,10 +86,16 @@ def test_validate_on_held_out_rows(model_file, truth, tmp_path):
     assert (tmp_path / "val" / "validation.png").is_file()
     # identifiability per row and per parameter; the goal covers the identifiable ones
     assert all("flat" in r for r in rep["rows"])
+    from inverse.validate import CONSTRAINED_WIDTH
+
     for name, p in rep["per_parameter"].items():
-        frac = np.mean([name not in r["flat"] for r in rep["rows"]])
-        assert p["identifiable_fraction"] == pytest.approx(frac)
-        assert (name in rep["identifiable"]) == (frac >= 0.5)
+        steep = np.array([name not in r["flat"] for r in rep["rows"]])
+        ci = np.array([r["parameters"][name]["ci90_unit"] for r in rep["rows"]])
+        narrow = ci[:, 1] - ci[:, 0] <= CONSTRAINED_WIDTH * 0.9
+        assert p["profile_fraction"] == pytest.approx(steep.mean())
+        assert p["narrow_fraction"] == pytest.approx(narrow.mean())
+        assert p["identifiable_fraction"] == pytest.approx((steep & narrow).mean())
+        assert (name in rep["identifiable"]) == ((steep & narrow).mean() >= 0.5)
     assert set(rep["identifiable_coverage"]) == set(rep["identifiable"])
     assert not (tmp_path / "val" / "validation.partial.json").exists()
 
