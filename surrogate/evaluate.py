@@ -253,15 +253,19 @@ def seed_mean_comparison(model: SurrogateModel, ds: Dataset, role: str = "holdou
 
 
 def baseline_metrics(model: SurrogateModel, ds: Dataset, train_rows, test_rows,
-                     n_components: int = 8, seed: int = 0) -> dict:
-    """PCA + GP baseline fitted on ``train_rows`` (in the model's normalisation) and scored
-    on ``test_rows`` with :func:`pressure_errors`."""
+                     n_components: int = 8, seed: int = 0, test_ds: Dataset | None = None
+                     ) -> dict:
+    """PCA + GP baseline fitted on ``train_rows`` of ``ds`` (in the model's normalisation)
+    and scored with :func:`pressure_errors` on ``test_rows`` of ``test_ds`` (default
+    ``ds``; e.g. the held-out seed means of :func:`calendaring.data.dataset.seed_means`)."""
     t0 = time.perf_counter()
+    test_ds = ds if test_ds is None else test_ds
     b = PCAGPBaseline(n_components, seed).fit(
         ds.unit_params[train_rows], model.normalise_pressure(ds.pressure[train_rows]))
-    mean, sd = b.predict(ds.unit_params[test_rows])
-    out = pressure_errors(ds.pressure[test_rows], model.pressure_from_normalised(mean), model)
-    err = np.abs(mean - model.normalise_pressure(ds.pressure[test_rows]))
+    mean, sd = b.predict(test_ds.unit_params[test_rows])
+    truth = test_ds.pressure[test_rows]
+    out = pressure_errors(truth, model.pressure_from_normalised(mean), model)
+    err = np.abs(mean - model.normalise_pressure(truth))
     out["coverage_2sigma"] = float(np.mean(err <= 2 * sd))
     out["n_components"] = len(b.gps)
     out["fit_seconds"] = time.perf_counter() - t0
@@ -539,6 +543,10 @@ def evaluate(model: SurrogateModel, ds: Dataset, out_dir: str | Path | None = No
     if baseline and split is not None and len(split["test"]):
         train_rows = np.concatenate([split["train"], split["val"]])
         out["baseline_test"] = baseline_metrics(model, ds, train_rows, split["test"])
+        if out["holdout_means"] is not None:
+            means = seed_means(ds)
+            out["baseline_holdout_means"] = baseline_metrics(
+                model, ds, train_rows, np.arange(len(means)), test_ds=means)
     if folds:
         cfg = TrainConfig.from_dict(model.info.get("train_config", {}))
         if epochs is not None:
@@ -622,10 +630,13 @@ def summary_lines(out: dict) -> list[str]:
                      f"MSE {h['pressure_mse_normalised']:.3g} (normalised; target "
                      f"{h['targets']['pressure_mse_normalised']:g}, the exact mean curve would "
                      f"score {h['pressure_mse_normalised_floor']:.3g}), error {at}{kl}")
-    b = out.get("baseline_test")
-    if b:
-        lines.append(f"PCA+GP baseline (test): pressure MSE {b['pressure_mse_normalised']:.3g} "
-                     f"(normalised), RMSE {b['pressure_rmse_Pa'] / 1e6:.3g} MPa")
+    for key, what in (("baseline_test", "test"), ("baseline_holdout_means",
+                                                   "held-out seed means")):
+        b = out.get(key)
+        if b:
+            lines.append(f"PCA+GP baseline ({what}): pressure MSE "
+                         f"{b['pressure_mse_normalised']:.3g} (normalised), RMSE "
+                         f"{b['pressure_rmse_Pa'] / 1e6:.3g} MPa")
     cv = out.get("cross_validation")
     if cv:
         for k, v in cv["summary"].items():

@@ -97,3 +97,30 @@ def test_learning_curve_cli(lc_ds, tmp_path, capsys):
     rc = main(["learning-curve", str(data), "--out-dir", str(tmp_path / "lc2"), "--sizes", "2",
                "--quiet"])
     assert rc == 2 and "--sizes" in capsys.readouterr().err
+
+
+def test_evaluate_scores_model_and_baseline_on_held_out_seed_means(lc_ds, tmp_path):
+    from calendaring.data.dataset import seed_means
+    from surrogate.evaluate import baseline_metrics, pressure_errors, split_rows
+
+    data = write_dataset(tmp_path / "lc.h5", lc_ds)
+    model = tmp_path / "m.pt"
+    assert main(["train", str(data), "--out", str(model), "--epochs", "2", "--batch-size",
+                 "8", "--quiet"]) == 0
+    assert main(["evaluate", str(model), str(data), "--out-dir", str(tmp_path / "e"),
+                 "--quiet"]) == 0
+    m = json.loads((tmp_path / "e" / "metrics.json").read_text())
+    h = m["holdout_means"]
+    assert h["groups"] == 3 and h["runs_per_group"] == [3, 3, 3]
+    import surrogate
+
+    sm = surrogate.load(model)
+    means = seed_means(lc_ds)
+    direct = pressure_errors(means.pressure, sm.predict_unit(means.unit_params).pressure, sm)
+    assert h["pressure_mse_normalised"] == pytest.approx(direct["pressure_mse_normalised"],
+                                                         rel=1e-6)
+    split = split_rows(sm, lc_ds)
+    rows = np.concatenate([split["train"], split["val"]])
+    b = baseline_metrics(sm, lc_ds, rows, np.arange(3), test_ds=means)
+    assert m["baseline_holdout_means"]["pressure_mse_normalised"] == pytest.approx(
+        b["pressure_mse_normalised"], rel=1e-6)
