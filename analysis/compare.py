@@ -744,6 +744,5 @@ def _am_diameters(rec) -> np.ndarray:
 
 
 __all__ = ["CLAIMS", "INITIAL_CHOICES", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case",
-           "compare",
-           "compare_seeds", "execute", "plan", "plot_seeds", "pool_seeds", "run_command",
+           "compare", "compare_seeds", "execute", "plan", "plot_seeds", "pool_seeds", "run_command",
            "run_summary", "seed_metrics", "target_snapshots", "truncation_sigmas"]

@@ -196,7 +196,7 @@ def _centroids(s: str | None):
 def _row_target(args, model):
     """``--target-row`` of ``--dataset``: the row's target and its true parameters."""
     from calendaring import read_dataset
-    from inverse.validate import row_target
+    from inverse.validate import row_target, trained_on
 
     if not args.dataset:
         raise ConfigError("--dataset", None, "a DATASET.h5 with --target-row")
@@ -208,10 +208,7 @@ def _row_target(args, model):
         raise ConfigError("--dataset", args.dataset, f"the model's parameters "
                           f"{model.space.names}")
     i = int(args.target_row)
-    if i >= len(ds):
-        raise ConfigError("--target-row", i, f"a row index in [0, {len(ds) - 1}]")
-    trained = {str(x) for part in model.info.get("split", {}).values() for x in part}
-    if str(ds.run_id[i]) in trained:
+    if trained_on(model, ds, i):
         print(f"warning: row {i} ({ds.run_id[i]}) is one the model trained on",
               file=sys.stderr)
     target = row_target(model, ds, i)

@@ -319,13 +319,10 @@ class Refinement:
         m.space.check(self.fix)
         self.truth = None
         if target_row is not None:
-            from inverse.validate import row_target
+            from inverse.validate import row_target, trained_on
 
             i = int(target_row)
-            if not 0 <= i < len(d):
-                raise ConfigError("--target-row", i, f"a row index in [0, {len(d) - 1}]")
-            trained = {str(x) for part in m.info.get("split", {}).values() for x in part}
-            if str(d.run_id[i]) in trained or d.role[i] == "train":
+            if trained_on(m, d, i) or d.role[i] == "train":
                 raise ConfigError("--target-row", i, "a row the model never trained on "
                                   f"(role holdout or replicate; row {i} is "
                                   f"{d.role[i]} {d.run_id[i]})")

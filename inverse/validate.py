@@ -60,6 +60,15 @@ def row_target(model, ds, i: int, use_distribution: bool = True) -> Target:
     return t
 
 
+def trained_on(model, ds, i: int) -> bool:
+    """Whether dataset row ``i`` (an index, checked against ``ds``) is one of the runs in
+    the model's training split (matched by run id)."""
+    if not 0 <= int(i) < len(ds):
+        raise ConfigError("--target-row", int(i), f"a row index in [0, {len(ds) - 1}]")
+    trained = {str(x) for part in model.info.get("split", {}).values() for x in part}
+    return str(ds.run_id[int(i)]) in trained
+
+
 def select_rows(ds, rows=None, roles=("holdout",)) -> np.ndarray:
     """Rows to validate on: explicit indices, else those with one of ``roles``."""
     if rows is not None:
@@ -216,7 +225,7 @@ def _request(model, ds, kw: dict) -> dict:
     """What makes a row's record reusable: the model file, the dataset and the settings."""
     path = model.info.get("path") if hasattr(model, "info") else None
     settings = {k: (v.to_json() if hasattr(v, "to_json") else v) for k, v in kw.items()
-                if k not in ("progress", "rows", "roles", "done", "on_row")}
+                if k not in ("progress", "rows", "roles")}
     req = {"model_sha256": file_sha256(path) if path and Path(path).is_file() else None,
            "dataset_fingerprint": ds.fingerprint, "settings": settings}
     return json.loads(json.dumps(req, default=str))
@@ -256,4 +265,4 @@ def validate_to_dir(model, ds, out_dir, **kw) -> dict:
 
 __all__ = ["CONSTRAINED_WIDTH", "COVERAGE_GOAL", "KEY_PARAMETERS", "PRIOR_CI90_WIDTH",
            "identifiable_fractions", "plot_validation", "row_target", "select_rows",
-           "validate", "validate_to_dir"]
+           "trained_on", "validate", "validate_to_dir"]

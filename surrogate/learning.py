@@ -127,7 +127,8 @@ def learning_curve(ds: Dataset, sizes=None, repeats: int = 1, cfg: TrainConfig |
 
     cfg = cfg or TrainConfig()
     model_config = model_config or config_for(ds)
-    if len(seed_means(ds, "holdout")) == 0:
+    n_groups = len(seed_means(ds, "holdout"))
+    if n_groups == 0:
         raise ConfigError("dataset", str(ds.path or "<memory>"),
                           "holdout groups of >= 2 seeds (the learning curve's test targets)")
     rows = trainable_rows(ds, cfg.train_roles)
@@ -176,7 +177,7 @@ def learning_curve(ds: Dataset, sizes=None, repeats: int = 1, cfg: TrainConfig |
             write_json(out_dir / RESULT, {"request": request, "points": points})
     out = summarise([p for p in points if p["repeat"] < repeats and p["n"] in sizes],
                     sizes, target)
-    out.update({"request": request, "points": points, "holdout_groups": len(seed_means(ds)),
+    out.update({"request": request, "points": points, "holdout_groups": n_groups,
                 "trainable_rows": len(rows), "requested": {"sizes": sizes, "repeats": repeats}})
     if out_dir is not None:
         write_json(out_dir / RESULT, out)

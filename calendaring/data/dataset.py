@@ -328,7 +328,7 @@ def seed_means(ds: Dataset, role: str = "holdout", min_runs: int = 2) -> Dataset
               if np.sum((ds.group == g) & mine) >= min_runs]
     rows = []
     for g in groups:
-        idx = np.nonzero((ds.group == g) & (ds.role == role))[0]
+        idx = np.nonzero((ds.group == g) & mine)[0]
         w = ds.n_events[idx].astype(float)
         pooled = np.tensordot(w, ds.histogram[idx], axes=1)
         total = pooled.sum()
