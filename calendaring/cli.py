@@ -154,6 +154,9 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--diameter-range", type=real(0, lo_open=True, unit="m"), nargs=2,
                    metavar=("MIN_M", "MAX_M"),
                    help="fixed diameter edges [m] (default: the events' range)")
+    d.add_argument("--note", action="append", default=[], metavar="KEY=TEXT",
+                   help="a note kept in the provenance under notes.KEY, e.g. which commit "
+                        "ran runs that predate the recording of source commits (repeatable)")
     d.add_argument("--overwrite", action="store_true", help="replace an existing file")
     d.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap
@@ -291,6 +294,14 @@ def cmd_dataset(args) -> int:
     from calendaring.data.dataset import build_dataset, write_dataset
 
     input_folder(args.runs, "RUNS")
+    notes = {}
+    for item in args.note:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip() or not text.strip():
+            raise ConfigError("--note", item, "KEY=TEXT with a non-empty key and text")
+        if key.strip() in notes:
+            raise ConfigError("--note", item, f"one note per key ({key.strip()!r} repeated)")
+        notes[key.strip()] = text.strip()
     out = output_path(args.out, "--out", suffixes=(".h5", ".hdf5"), overwrite=args.overwrite)
     ds = build_dataset(args.runs, n_points=args.points, savgol_window=args.savgol_window,
                        savgol_order=args.savgol_order, bins=args.bins,
@@ -298,7 +309,7 @@ def cmd_dataset(args) -> int:
                        load_range=tuple(args.load_range) if args.load_range else None,
                        diameter_range=tuple(args.diameter_range) if args.diameter_range
                        else None, progress=not args.quiet,
-                       command="calendaring dataset " + " ".join(sys.argv[2:]))
+                       command="calendaring dataset " + " ".join(sys.argv[2:]), notes=notes)
     write_dataset(out, ds)
     from calendaring.core.fileio import write_json
     from calendaring.data.dataset import noise_floor, provenance_report

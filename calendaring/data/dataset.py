@@ -573,6 +573,7 @@ class _Source:
     peak_load: np.ndarray
     diameter: np.ndarray
     pressure_means: object  # n_points -> interval means [Pa]
+    source_commit: str  # git commit of the code that ran it ("" unrecorded)
 
     @classmethod
     def open(cls, run: Path, digest: Path) -> _Source:
@@ -593,7 +594,8 @@ class _Source:
                        breakage_model=dg.breakage_model, stroke=dg.stroke,
                        final_depth=dg.final_depth, wall_seconds=dg.wall_seconds,
                        peak_load=dg.peak_load, diameter=dg.diameter,
-                       pressure_means=lambda n: dg.pressure_means(n)[1])
+                       pressure_means=lambda n: dg.pressure_means(n)[1],
+                       source_commit=dg.source_commit)
         return cls(name=run.stem, kind="run file", config=rec.config, preset=rec.preset,
                    seed=rec.seed,
                    breakage_model=rec.breakage_model, stroke=rec.stroke,
@@ -601,7 +603,8 @@ class _Source:
                    wall_seconds=float(rec.info.get("wall_seconds", 0.0)),
                    peak_load=rec.breakage["peak_load"], diameter=rec.breakage["diameter"],
                    pressure_means=lambda n: resample_pressure(
-                       rec.pressure["depth"], rec.pressure["value"], rec.stroke, n)[1])
+                       rec.pressure["depth"], rec.pressure["value"], rec.stroke, n)[1],
+                   source_commit=rec.source_commit)
 
 
 def _read_rows(folder: Path, n_points: int, space: ParameterSpace, progress: bool,
@@ -662,7 +665,7 @@ def _read_rows(folder: Path, n_points: int, space: ParameterSpace, progress: boo
             "run_id": name, "file": path.name, "role": e.role if e else "train",
             "design_index": e.index if e else -1, "seed": rec.seed,
             "group": e.group if e else "", "wall": rec.wall_seconds, "kind": rec.kind,
-            "stroke": rec.stroke})
+            "stroke": rec.stroke, "commit": rec.source_commit})
         if progress and (k == len(names) - 1 or k % 25 == 0):
             print(f"[dataset] {k + 1}/{len(names)} runs read "
                   f"({time.perf_counter() - t0:.0f} s)",
@@ -683,13 +686,15 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
                   load_range: tuple[float, float] | None = None,
                   diameter_range: tuple[float, float] | None = None,
                   space: ParameterSpace = PAPER_SPACE, progress: bool = True,
-                  command: str = "") -> Dataset:
+                  command: str = "", notes: dict[str, str] | None = None) -> Dataset:
     """Consolidate the run files of a sweep folder (``runs/*.h5``, or ``*.h5`` directly in
     ``folder``) into a :class:`Dataset`; a run without a usable run file is taken from its
     digest ``digests/<run>.h5`` (:mod:`calendaring.data.digest`) when there is one. Roles and
     replicate groups come from the sweep's manifest when there is one (otherwise every run
     is ``train``). Corrupt, incomplete, no-breakage or foreign runs are listed in
-    ``skipped`` with the reason.
+    ``skipped`` with the reason. The provenance counts the runs per source commit (the git
+    commit each run file or digest records, ``"unrecorded"`` where it has none) and keeps
+    ``notes`` (free text by key, e.g. what the files cannot say about how they were made).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -724,8 +729,19 @@ def build_dataset(folder: str | Path, *, n_points: int = 196, savgol_window: int
                         datetime.UTC).isoformat(timespec="seconds"),
                     "run_files": n_names, "used": len(rows), "skipped": len(skipped),
                     "from_digests": sum(r["kind"] == "digest" for r in rows),
-                    "preset": rec0.preset,
+                    "preset": rec0.preset, "source_commits": commit_counts(rows),
+                    **({"notes": dict(notes)} if notes else {}),
                     "group_names": sorted({r["group"] for r in rows if r["group"]})})
+
+
+def commit_counts(rows: list[dict]) -> dict[str, int]:
+    """Runs per source commit of rows of :func:`_read_rows`, most runs first; runs that
+    record none count as ``"unrecorded"``."""
+    counts: dict[str, int] = {}
+    for r in rows:
+        key = r["commit"] or "unrecorded"
+        counts[key] = counts.get(key, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def _row_arrays(rows: list[dict], load_edges, diameter_edges,
@@ -812,7 +828,7 @@ def append_runs(ds: Dataset, folder: str | Path, names: Iterable[str] | None = N
     prov = dict(ds.provenance)
     prov.setdefault("appended", []).append({
         "runs_folder": str(folder.resolve()), "rows": len(rows), "skipped": len(skipped),
-        "role": role or "from the manifest",
+        "role": role or "from the manifest", "source_commits": commit_counts(rows),
         "at": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")})
     prov["group_names"] = groups
     return replace(ds, **merged, cbrt_min=float(c.min()), cbrt_max=float(c.max()),

@@ -11,7 +11,8 @@ so a long sweep's evidence can live in the repository (a run file of the 100 um 
 some MB, its digest about 30 kB) and survive the loss of the machine that ran it.
 
 Layout (HDF5; every dataset has a ``unit`` attribute): root attributes ``format`` =
-``calendaring-run-digest``, ``schema_version``, ``run``, ``software_version``, ``config``
+``calendaring-run-digest``, ``schema_version``, ``run``, ``software_version``,
+``source_commit`` (the run file's; optional, absent in older digests), ``config``
 (JSON), ``config_hash``, ``seed``, ``preset``, ``breakage_model``, ``stroke`` [m],
 ``final_depth`` [m], ``wall_seconds`` [s], ``n_particles``, ``particles_end``; datasets
 ``pressure_mean`` [Pa] (:data:`POINTS`), ``peak_load`` [N], ``diameter`` [m].
@@ -57,6 +58,7 @@ class Digest:
     pressure_mean: np.ndarray  # [Pa], POINTS interval means over [0, stroke]
     peak_load: np.ndarray  # [N]
     diameter: np.ndarray  # [m]
+    source_commit: str = ""  # git commit of the code that ran it ("" unrecorded)
 
     def pressure_means(self, n_points: int) -> tuple[np.ndarray, np.ndarray]:
         """(midpoint depths [m], mean pressure [Pa]) over ``n_points`` equal intervals;
@@ -92,6 +94,7 @@ def write_digest(path: str | Path, rec: RunRecord) -> Path:
         a["schema_version"] = DIGEST_SCHEMA
         a["run"] = rec.path.stem
         a["software_version"] = rec.software_version
+        a["source_commit"] = rec.source_commit
         a["config"] = rec.config_json
         a["config_hash"] = config_text_hash(rec.config_json)
         a["seed"] = int(rec.seed)
@@ -147,7 +150,8 @@ def read_digest(path: str | Path) -> Digest:
                     breakage_model=str(a["breakage_model"]), stroke=float(a["stroke"]),
                     final_depth=float(a["final_depth"]),
                     wall_seconds=float(a["wall_seconds"]), n_particles=int(a["n_particles"]),
-                    particles_end=int(a["particles_end"]), **arrays)
+                    particles_end=int(a["particles_end"]),
+                    source_commit=str(a.get("source_commit", "")), **arrays)
     except RunFileError:
         raise
     except (KeyError, ValueError, TypeError) as err:

@@ -6,7 +6,9 @@ Every dataset carries a ``unit`` attribute (SI; ``"1"`` for counts and ratios) a
 ``description``. Schema version 2:
 
 Root attributes: ``format`` = "calendaring-run", ``schema_version``, ``software_version``,
-``config`` (canonical JSON of the full configuration), ``config_hash``, ``seed``, ``preset``,
+``source_commit`` (the git commit of the code that ran it, ``+dirty`` with local changes,
+empty outside a checkout; optional: files written before it lack it), ``config``
+(canonical JSON of the full configuration), ``config_hash``, ``seed``, ``preset``,
 ``created`` (UTC ISO 8601), ``cell_x``, ``cell_y``, ``thickness``, ``stroke`` (m),
 ``breakage_model`` (``"tavares_ufrj"`` or ``"none"`` for the no-breakage control),
 ``info`` (JSON: build report, time steps, plate speed, bond count, pool capacity, breakage
@@ -81,7 +83,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from calendaring._version import __version__
+from calendaring._version import __version__, source_commit
 from calendaring.core.config import (
     SimConfig,
     config_hash,
@@ -239,6 +241,7 @@ def write_run(path: str | Path, data: dict) -> Path:
         a["format"] = FORMAT
         a["schema_version"] = SCHEMA_VERSION
         a["software_version"] = __version__
+        a["source_commit"] = source_commit()
         a["config"] = config_json(cfg)
         a["config_hash"] = config_hash(cfg)
         a["seed"] = int(data["seed"])
@@ -337,6 +340,7 @@ class RunRecord:
     energy: dict[str, np.ndarray]
     snapshots: list[Snapshot]
     breakage: dict[str, np.ndarray]  # BREAKAGE columns, plus "fragments": FRAGMENTS columns
+    source_commit: str = ""  # git commit of the code that ran it ("" unrecorded)
 
     def snapshot_near(self, depth: float) -> Snapshot:
         """The snapshot whose depth is closest to ``depth`` [m]."""
@@ -403,6 +407,7 @@ def read_run(path: str | Path) -> RunRecord:
             scalars = {k: a[k] for k in ("seed", "preset", "created", "cell_x", "cell_y",
                                          "thickness", "stroke", "breakage_model",
                                          "software_version", "config_hash")}
+            commit = str(a.get("source_commit", ""))  # absent in files written before it
         except Exception as err:
             raise RunFileError(path, f"bad root attributes ({err})") from None
         if config_text_hash(cfg_text) != scalars["config_hash"]:
@@ -445,7 +450,8 @@ def read_run(path: str | Path) -> RunRecord:
                      thickness=float(scalars["thickness"]), stroke=float(scalars["stroke"]),
                      breakage_model=str(scalars["breakage_model"]), info=info,
                      pressure=pressure, unloading=unloading, series=series, energy=energy,
-                     snapshots=snaps, breakage=breakage)
+                     snapshots=snaps, breakage=breakage,
+                     source_commit=commit)
 
 
 # ---------------------------------------------------------------------- checkpoints

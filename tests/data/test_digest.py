@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shutil
 
+import h5py
 import numpy as np
 import pytest
 
@@ -182,3 +183,56 @@ def test_sweep_keep_refuses_a_keep_folder_that_git_ignores(sweep_folder, tmp_pat
         res = subprocess.run(["git", "-C", str(root), "check-ignore", "-q", "--no-index",
                               probe], capture_output=True)
         assert res.returncode == 1, f"{probe} is git-ignored"
+
+
+def test_runs_and_digests_record_the_source_commit_and_the_dataset_counts_them(sweep_folder):
+    from calendaring._version import source_commit
+
+    here = source_commit()
+    paths = sorted((sweep_folder / "runs").glob("*.h5"))
+    assert read_run(paths[0]).source_commit == here
+    assert read_digest(digest_path(sweep_folder, paths[0].stem)).source_commit == here
+    # a run written before the attribute existed: its run file is gone and its digest
+    # lacks the attribute, so it counts as unrecorded
+    paths[0].unlink()
+    with h5py.File(digest_path(sweep_folder, paths[0].stem), "a") as f:
+        del f.attrs["source_commit"]
+    assert read_digest(digest_path(sweep_folder, paths[0].stem)).source_commit == ""
+    ds = build_dataset(sweep_folder, progress=False, notes={"why": "a test"})
+    expect = {"unrecorded": 1}
+    expect[here or "unrecorded"] = expect.get(here or "unrecorded", 0) + 3
+    assert ds.provenance["source_commits"] == expect
+    assert ds.provenance["notes"] == {"why": "a test"}
+
+
+def test_source_commit_names_the_checkout_and_its_local_changes(tmp_path):
+    """The function run from a copy of the package: no repository, then a committed one,
+    then one with a tracked file changed."""
+    import importlib.util
+    import subprocess
+    from pathlib import Path
+
+    import calendaring._version as version
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    pkg = tmp_path / "calendaring"
+    pkg.mkdir()
+    shutil.copy(Path(version.__file__), pkg / "_version.py")
+
+    def fresh():
+        spec = importlib.util.spec_from_file_location("_v", pkg / "_version.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        return mod.source_commit()
+
+    assert fresh() == ""  # not a checkout
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "calendaring/_version.py"], check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "x"], check=True)
+    sha = subprocess.run([*git, "rev-parse", "HEAD"], check=True, capture_output=True,
+                         text=True).stdout.strip()
+    assert len(sha) == 40 and fresh() == sha
+    (pkg / "_version.py").write_text((pkg / "_version.py").read_text() + "\n# changed\n")
+    assert fresh() == sha + "+dirty"

@@ -122,11 +122,23 @@ def test_dataset_from_the_sweep(swept, tmp_path):
 
 def test_dataset_cli_writes_the_provenance(swept, tmp_path):
     _out, opt, runs = swept
-    r = subprocess.run([sys.executable, "-m", "calendaring.cli", "dataset", str(opt.out),
-                        "--out", str(tmp_path / "ds.h5"), "--quiet"], cwd=ROOT,
-                       capture_output=True, text=True)
+    from calendaring._version import source_commit
+
+    cmd = [sys.executable, "-m", "calendaring.cli", "dataset", str(opt.out), "--quiet"]
+    for bad in (["no-equals-sign"], ["=text"], ["key= "], ["a=1", "a=2"]):
+        notes = [x for note in bad for x in ("--note", note)]
+        r = subprocess.run([*cmd, "--out", str(tmp_path / "bad.h5"), *notes], cwd=ROOT,
+                           capture_output=True, text=True)
+        assert r.returncode != 0 and "--note" in r.stderr, (bad, r.stderr)
+        assert not (tmp_path / "bad.h5").exists()
+    r = subprocess.run([*cmd, "--out", str(tmp_path / "ds.h5"), "--note",
+                        "engine=the commit of every run"], cwd=ROOT, capture_output=True,
+                       text=True)
     assert r.returncode == 0, r.stderr
     prov = json.loads((tmp_path / "ds.provenance.json").read_text())
+    # every run records the commit that ran it (the same checkout as this test's)
+    assert prov["source_commits"] == {source_commit() or "unrecorded": 2}
+    assert prov["notes"] == {"engine": "the commit of every run"}
     assert prov["sweep"]["train"]["done"] == 2 and prov["sweep"]["train"]["failed"] == 1
     assert prov["software_version"] and "calendaring dataset" in prov["command"]
     assert prov["sweep"]["train"]["wall_seconds_total"] > 0
