@@ -372,7 +372,21 @@ def format_seeds(pooled: dict) -> str:
         rel, paper = cl["relative_change"], cl["paper_relative_change"]
         rel_s = f"{100 * rel:+.1f} %" if rel is not None else "-"
         paper_s = f"{100 * paper:+.1f} %" if paper is not None else "-"
-        lines.append(f"{cl['claim']}: {cl['verdict']} (here {rel_s}, paper {paper_s})")
+        res = cl.get("resolution")
+        res_s = ""
+        if res:
+            steps = "/".join(f"{100 * r:+.1f}" for r in res["relative_difference"])
+            vpd = "/".join(f"{v:g}" for v in res["voxels_per_diameter"])
+            res_s = (f"; {steps} % at {vpd} voxels per diameter, "
+                     f"{'converged' if res['converged'] else 'not converged'} (ratio "
+                     f"{100 * res['ratio_change']:.2g} % between the finest two")
+            if res.get("below_seed_scatter") is not None:
+                res_s += (", below" if res["below_seed_scatter"] else ", above") + \
+                    " the seed scatter"
+            if res.get("extrapolated") is not None:
+                res_s += f"; extrapolated {100 * res['extrapolated']:+.1f} %"
+            res_s += ")"
+        lines.append(f"{cl['claim']}: {cl['verdict']} (here {rel_s}, paper {paper_s}{res_s})")
     return "\n".join(lines)
 
 

@@ -630,6 +630,75 @@ def seed_metrics(report: dict) -> dict[str, dict[str, float | None]]:
     return out
 
 
+def final_levels(report: dict, case: str) -> dict[float, dict]:
+    """The refinement levels of a case's deepest analysed snapshot in one seed's report:
+    ``{voxels per diameter (2 decimals): {"tortuosity", "D_eff", "refine_tol"}}``; empty
+    when the analysis kept none (``--resolution two-point``, an error record)."""
+    res = ((report.get("microstructure") or {}).get(case) or {}).get("result") or {}
+    snaps = [s for s in res.get("snapshots") or []
+             if isinstance(s, dict) and s.get("depth_m") is not None]
+    if not snaps:
+        return {}
+    ref = max(snaps, key=lambda s: s["depth_m"]).get("refinement") or {}
+    tol = ref.get("refine_tol", (res.get("settings") or {}).get("refine_tol"))
+    return {round(float(lv["voxels_per_diameter"]), 2):
+            {"tortuosity": lv.get("tortuosity"), "D_eff": lv.get("D_eff"), "refine_tol": tol}
+            for lv in ref.get("levels") or [] if lv.get("voxels_per_diameter")}
+
+
+def resolution_check(reports: dict[int, dict], case: str, base: str, metric: str) -> dict | None:
+    """How the relative difference ``case / base - 1`` of a final-depth metric moves with
+    the voxel size: per refinement level that every seed analysed for both cases, the
+    seeds' mean of the paired relative difference; its change between the two finest
+    levels (``last_change``) and of the ratio ``case / base`` (``ratio_change``); from
+    three levels whose changes shrink with one sign, the limit of their geometric tail
+    (``extrapolated``). ``remaining`` is what resolution may still change: the distance to
+    that limit, the last change when only two levels exist, None when the changes do not
+    shrink. ``converged`` when the remaining change of the ratio is below the refinement's
+    own tolerance (the criterion tau itself is held to), and ``below_seed_scatter`` when
+    the last change is smaller than the half-width of the seeds' 95 % interval of the
+    relative difference at the finest level. A difference can
+    converge long before either value does: the resolution error of a compressed bed is
+    local and nearly the same factor in both cases (benchmarks/README, the converged
+    microstructure of one 100 um snapshot). None when fewer than two common levels."""
+    per_seed = []
+    for s in sorted(reports):
+        a, b = final_levels(reports[s], case), final_levels(reports[s], base)
+        per_seed.append({v: (a[v], b[v]) for v in a.keys() & b.keys()
+                         if a[v].get(metric) and b[v].get(metric)})
+    common = sorted(set.intersection(*(set(p) for p in per_seed))) if per_seed else []
+    if len(common) < 2:
+        return None
+    rel = {v: [p[v][0][metric] / p[v][1][metric] - 1 for p in per_seed] for v in common}
+    mean = [float(np.mean(rel[v])) for v in common]
+    ratio_change = abs((1 + mean[-1]) / (1 + mean[-2]) - 1)
+    tols = [t for p in per_seed for v in common[-2:] for t in (p[v][0]["refine_tol"],
+                                                               p[v][1]["refine_tol"])
+            if t is not None]
+    tol = min(tols) if tols else 0.02
+    # what resolution may still change: the geometric tail of the changes when three
+    # levels show them shrinking with one sign, the last change from two levels, unknown
+    # (not converged) when the changes do not shrink
+    extrapolated, remaining = None, abs(mean[-1] - mean[-2])
+    if len(mean) >= 3:
+        d1, d2 = mean[-2] - mean[-3], mean[-1] - mean[-2]
+        q = d2 / d1 if d1 else (0.0 if d2 == 0 else math.inf)
+        if 0.0 <= q < 1.0:
+            extrapolated = mean[-1] + d2 * q / (1.0 - q)
+            remaining = abs(extrapolated - mean[-1])
+        else:
+            remaining = None
+    finest = _stats(rel[common[-1]])
+    half = None if finest["ci95"] is None else (finest["ci95"][1] - finest["ci95"][0]) / 2
+    converged = remaining is not None and remaining / (1 + mean[-1]) < tol
+    return {"voxels_per_diameter": common, "relative_difference": mean,
+            "last_change": mean[-1] - mean[-2], "extrapolated": extrapolated,
+            "remaining": remaining, "ratio_change": ratio_change,
+            "tolerance": tol, "converged": bool(converged),
+            "seed_ci95_half_width": half,
+            "below_seed_scatter": None if half is None else bool(abs(mean[-1] - mean[-2]) < half)}
+
+
 def pool_seeds(reports: dict[int, dict]) -> dict:
     """Seed statistics of several :func:`compare` reports (one per seed, same studies):
     per case and metric the mean, sd and 95 % interval over seeds; per case against its
@@ -637,7 +706,8 @@ def pool_seeds(reports: dict[int, dict]) -> dict:
     share their packing) with their interval and the relative change; and each claim of
     the paper (:data:`CLAIMS`) as ``holds`` (the 95 % interval of the difference excludes 0
     on the paper's side), ``opposite`` (it excludes 0 on the other side) or ``not
-    resolved``, next to the paper's own change."""
+    resolved``, next to the paper's own change and the difference's dependence on the voxel
+    size (:func:`resolution_check`)."""
     per_seed = {int(k): seed_metrics(r) for k, r in reports.items()}
     cases = sorted({c for m in per_seed.values() for c in m})
     metrics = sorted({k for m in per_seed.values() for row in m.values() for k in row})
@@ -679,7 +749,8 @@ def pool_seeds(reports: dict[int, dict]) -> dict:
         claims.append({"claim": text, "difference": key, "metric": f"final_{metric}",
                        "verdict": verdict, "relative_change": None if st is None else
                        st.get("relative"), "paper_relative_change": paper,
-                       "difference_stats": st})
+                       "difference_stats": st,
+                       "resolution": resolution_check(reports, c, base, metric)})
     return {"seeds": sorted(per_seed), "per_seed": per_seed, "cases": cases_out,
             "differences": diffs, "claims": claims,
             "paper_final": {k: {"tortuosity": v[0], "D_eff": v[1]}
@@ -744,5 +815,6 @@ def _am_diameters(rec) -> np.ndarray:
 
 
 __all__ = ["CLAIMS", "INITIAL_CHOICES", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case",
-           "compare", "compare_seeds", "execute", "plan", "plot_seeds", "pool_seeds", "run_command",
-           "run_summary", "seed_metrics", "target_snapshots", "truncation_sigmas"]
+           "compare", "compare_seeds", "execute", "final_levels", "plan", "plot_seeds",
+           "pool_seeds", "resolution_check", "run_command", "run_summary", "seed_metrics",
+           "target_snapshots", "truncation_sigmas"]

@@ -223,6 +223,92 @@ def test_pool_seeds_statistics_paired_differences_and_claims():
     assert all(c["verdict"] == "one seed: not resolved" for c in one["claims"])
 
 
+def _with_levels(rep: dict, case: str, levels: dict[float, tuple[float, float]],
+                 refine_tol: float = 0.02) -> dict:
+    """Give ``case`` of a fake report the refinement levels of its final snapshot:
+    ``levels[voxels per diameter] = (tortuosity, D_eff)``, and an initial snapshot without
+    levels (it must not be the one read)."""
+    rep["microstructure"][case]["result"] = {"settings": {"refine_tol": refine_tol}, "snapshots": [
+        {"depth_m": 19.5e-6, "refinement": {"refine_tol": refine_tol, "levels": [
+            {"voxels_per_diameter": v, "tortuosity": t, "D_eff": d}
+            for v, (t, d) in levels.items()]}},
+        {"depth_m": 0.0, "refinement": {"levels": [
+            {"voxels_per_diameter": 3.0, "tortuosity": 9.0, "D_eff": 9.0}]}}]}
+    return rep
+
+
+def test_resolution_check_of_paired_differences():
+    """The relative difference per level, its geometric tail, and convergence judged on
+    what resolution may still change, not on the last step alone."""
+    from analysis.compare import final_levels, pool_seeds, resolution_check
+
+    vpd = (3.0, 4.5, 6.75)
+    r1 = (2.10, 2.05, 2.02)
+    reports = {}
+    for s, jitter in enumerate((-0.01, 0.0, 0.01)):
+        rep = _fake_report(s, {"R0": (0.22, 2.3, 0.10), "R1": (0.22, 2.0, 0.16),
+                               "R5": (0.22, 2.1, 0.15)})
+        # R1 / R0 - 1 = -0.10, -0.09, -0.085 (changes shrink by half): limit -0.080
+        _with_levels(rep, "R1", {v: (t, 0.15) for v, t in zip(vpd, r1, strict=True)})
+        _with_levels(rep, "R0", {v: (t / (1 + r), 0.15) for v, t, r
+                                 in zip(vpd, r1, (-0.10 + jitter, -0.09 + jitter,
+                                                  -0.085 + jitter), strict=True)})
+        # R5 / R1 - 1 = 0.04, 0.05, 0.06: the changes do not shrink
+        _with_levels(rep, "R5", {v: (t * (1 + r), 0.15) for v, t, r
+                                 in zip(vpd, r1, (0.04, 0.05, 0.06), strict=True)})
+        reports[s] = rep
+    assert sorted(final_levels(reports[0], "R1")) == [3.0, 4.5, 6.75]
+    assert final_levels(reports[0], "R1")[6.75]["tortuosity"] == pytest.approx(2.02)
+
+    res = resolution_check(reports, "R1", "R0", "tortuosity")
+    assert res["voxels_per_diameter"] == [3.0, 4.5, 6.75]
+    assert res["relative_difference"] == pytest.approx([-0.10, -0.09, -0.085])
+    assert res["last_change"] == pytest.approx(0.005)
+    assert res["extrapolated"] == pytest.approx(-0.080)
+    assert res["remaining"] == pytest.approx(0.005)
+    assert res["ratio_change"] == pytest.approx(0.915 / 0.91 - 1)
+    assert res["converged"] is True and res["tolerance"] == 0.02
+    # seeds -0.095, -0.085, -0.075 at the finest level: a 95 % half-width of t * 0.01 / sqrt(3)
+    from scipy import stats
+    half = stats.t.ppf(0.975, 2) * 0.01 / np.sqrt(3)
+    assert res["seed_ci95_half_width"] == pytest.approx(half)
+    assert res["below_seed_scatter"] is True
+
+    grow = resolution_check(reports, "R5", "R1", "tortuosity")
+    assert grow["relative_difference"] == pytest.approx([0.04, 0.05, 0.06])
+    assert grow["extrapolated"] is None and grow["remaining"] is None
+    assert grow["converged"] is False   # every step 1 point: no sign of a limit
+    assert grow["ratio_change"] < 0.02  # ... although the last step alone is small
+
+    # only the levels every seed has count; two levels: the last change is what remains
+    del reports[2]["microstructure"]["R1"]["result"]["snapshots"][0]["refinement"]["levels"][0]
+    two = resolution_check(reports, "R1", "R0", "tortuosity")
+    assert two["voxels_per_diameter"] == [4.5, 6.75] and two["extrapolated"] is None
+    assert two["remaining"] == pytest.approx(0.005) and two["converged"] is True
+    # a tolerance tighter than the remaining change of the ratio: not converged
+    # a last change of 0.2 points: converged for a 2 % tolerance, not for 0.1 %
+    for tol, expect in ((0.02, True), (0.001, False)):
+        for rep in reports.values():
+            levels = {v: (t * (1 + r), 0.15)
+                      for v, t, r in zip(vpd, r1, (0.0, 0.0, 0.002), strict=True)}
+            _with_levels(rep, "R5", levels, refine_tol=tol)
+        tight = resolution_check(reports, "R5", "R1", "tortuosity")
+        assert tight["tolerance"] == tol and tight["relative_difference"] == pytest.approx(
+            [0.0, 0.002]) and tight["converged"] is expect
+    for rep in reports.values():
+        del rep["microstructure"]["R5"]["result"]
+    assert resolution_check(reports, "R5", "R1", "tortuosity") is None
+    pooled = pool_seeds(reports)
+    claims = {c["claim"]: c for c in pooled["claims"]}
+    assert claims["breakage lowers tortuosity at 19.5 um"]["resolution"]["converged"] is True
+    assert claims["larger particles (R5) lower tortuosity at 19.5 um"]["resolution"] is None
+    from analysis.cli import format_seeds
+
+    text = format_seeds(pooled)
+    assert ("breakage lowers tortuosity at 19.5 um: holds (here -13.0 %, paper -16.9 %; "
+            "-9.0/-8.5 % at 4.5/6.75 voxels per diameter, converged") in text
+
+
 def test_compare_seeds_runs_each_seed_in_its_folder(tmp_path, monkeypatch, capsys):
     import analysis.cli as cli
     import analysis.compare as cmp
