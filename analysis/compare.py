@@ -630,64 +630,62 @@ def seed_metrics(report: dict) -> dict[str, dict[str, float | None]]:
     return out
 
 
-def final_levels(report: dict, case: str) -> dict[float, dict]:
-    """The refinement levels of a case's deepest analysed snapshot in one seed's report:
-    ``{voxels per diameter (2 decimals): {"tortuosity", "D_eff", "refine_tol"}}``; empty
-    when the analysis kept none (``--resolution two-point``, an error record)."""
+def final_levels(report: dict, case: str) -> tuple[dict[float, dict], float | None]:
+    """The refinement levels of a case's deepest analysed snapshot in one seed's report,
+    ``{voxels per diameter (2 decimals): {"tortuosity", "D_eff"}}``, and the refinement's
+    tolerance; no levels when the analysis kept none (``--resolution two-point``, an error
+    record)."""
     res = ((report.get("microstructure") or {}).get(case) or {}).get("result") or {}
     snaps = [s for s in res.get("snapshots") or []
              if isinstance(s, dict) and s.get("depth_m") is not None]
     if not snaps:
-        return {}
+        return {}, None
     ref = max(snaps, key=lambda s: s["depth_m"]).get("refinement") or {}
     tol = ref.get("refine_tol", (res.get("settings") or {}).get("refine_tol"))
-    return {round(float(lv["voxels_per_diameter"]), 2):
-            {"tortuosity": lv.get("tortuosity"), "D_eff": lv.get("D_eff"), "refine_tol": tol}
-            for lv in ref.get("levels") or [] if lv.get("voxels_per_diameter")}
+    return ({round(float(lv["voxels_per_diameter"]), 2):
+             {"tortuosity": lv.get("tortuosity"), "D_eff": lv.get("D_eff")}
+             for lv in ref.get("levels") or [] if lv.get("voxels_per_diameter")}, tol)
 
 
 def resolution_check(reports: dict[int, dict], case: str, base: str, metric: str) -> dict | None:
-    """How the relative difference ``case / base - 1`` of a final-depth metric moves with
-    the voxel size: per refinement level that every seed analysed for both cases, the
-    seeds' mean of the paired relative difference; its change between the two finest
-    levels (``last_change``) and of the ratio ``case / base`` (``ratio_change``); from
-    three levels whose changes shrink with one sign, the limit of their geometric tail
-    (``extrapolated``). ``remaining`` is what resolution may still change: the distance to
-    that limit, the last change when only two levels exist, None when the changes do not
-    shrink. ``converged`` when the remaining change of the ratio is below the refinement's
-    own tolerance (the criterion tau itself is held to), and ``below_seed_scatter`` when
-    the last change is smaller than the half-width of the seeds' 95 % interval of the
-    relative difference at the finest level. A difference can
-    converge long before either value does: the resolution error of a compressed bed is
+    """How the relative difference ``case / base - 1`` of a final-depth metric moves with the
+    voxel size: per refinement level that every seed analysed for both cases, the seeds'
+    mean of the paired relative difference; its change between the two finest levels
+    (``last_change``) and of the ratio ``case / base`` (``ratio_change``); from three levels
+    whose changes shrink with one sign, their Richardson limit (``extrapolated``,
+    :func:`analysis.microstructure._richardson`, as for tau). ``remaining`` is what
+    resolution may still change: the distance to that limit, the last change when only two
+    levels exist, None when the changes do not shrink. ``converged`` when the remaining
+    change of the ratio is below the refinement's own tolerance (the criterion tau itself is
+    held to), and ``below_seed_scatter`` when the last change is smaller than the half-width
+    of the seeds' 95 % interval of the relative difference at the finest level. A difference
+    can converge long before either value does: the resolution error of a compressed bed is
     local and nearly the same factor in both cases (benchmarks/README, the converged
     microstructure of one 100 um snapshot). None when fewer than two common levels."""
-    per_seed = []
+    from analysis.microstructure import _richardson
+
+    per_seed, tols = [], []
     for s in sorted(reports):
-        a, b = final_levels(reports[s], case), final_levels(reports[s], base)
-        per_seed.append({v: (a[v], b[v]) for v in a.keys() & b.keys()
+        (a, ta), (b, tb) = final_levels(reports[s], case), final_levels(reports[s], base)
+        per_seed.append({v: a[v][metric] / b[v][metric] - 1 for v in a.keys() & b.keys()
                          if a[v].get(metric) and b[v].get(metric)})
+        tols += [t for t in (ta, tb) if t is not None]
     common = sorted(set.intersection(*(set(p) for p in per_seed))) if per_seed else []
     if len(common) < 2:
         return None
-    rel = {v: [p[v][0][metric] / p[v][1][metric] - 1 for p in per_seed] for v in common}
+    rel = {v: [p[v] for p in per_seed] for v in common}
     mean = [float(np.mean(rel[v])) for v in common]
     ratio_change = abs((1 + mean[-1]) / (1 + mean[-2]) - 1)
-    tols = [t for p in per_seed for v in common[-2:] for t in (p[v][0]["refine_tol"],
-                                                               p[v][1]["refine_tol"])
-            if t is not None]
     tol = min(tols) if tols else 0.02
-    # what resolution may still change: the geometric tail of the changes when three
-    # levels show them shrinking with one sign, the last change from two levels, unknown
-    # (not converged) when the changes do not shrink
+    # what resolution may still change: the Richardson limit when three levels show the
+    # changes shrinking with one sign (none left when the last step changed nothing), the
+    # last change from two levels, unknown (not converged) when the changes do not shrink
     extrapolated, remaining = None, abs(mean[-1] - mean[-2])
-    if len(mean) >= 3:
-        d1, d2 = mean[-2] - mean[-3], mean[-1] - mean[-2]
-        q = d2 / d1 if d1 else (0.0 if d2 == 0 else math.inf)
-        if 0.0 <= q < 1.0:
-            extrapolated = mean[-1] + d2 * q / (1.0 - q)
-            remaining = abs(extrapolated - mean[-1])
-        else:
-            remaining = None
+    if len(mean) >= 3 and remaining > 0:
+        extrapolated = _richardson(mean, [1.0 / v for v in common])["tortuosity_richardson"]
+        remaining = None if extrapolated is None else abs(extrapolated - mean[-1])
+    elif len(mean) >= 3:
+        extrapolated = mean[-1]
     finest = _stats(rel[common[-1]])
     half = None if finest["ci95"] is None else (finest["ci95"][1] - finest["ci95"][0]) / 2
     converged = remaining is not None and remaining / (1 + mean[-1]) < tol
