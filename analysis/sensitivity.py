@@ -356,6 +356,10 @@ def ensemble_single_pass(m, outputs_kw: Mapping | None = None) -> Model | None:
             for x in members:
                 x.eval()
             outs = [x(ut) for x in members]  # [(p_norm (n, 196), dist (n, L, D))]
+            gp = getattr(m, "pressure_gp", None)
+            if gp is not None:  # the pressure of every member is the GP branch's
+                p_gp = gp(ut, variance=False)[0]
+                outs = [(p_gp, d) for _, d in outs]
             res = outputs(torch.stack([o[0] for o in outs]).mean(0),
                           torch.stack([o[1] for o in outs]).mean(0))
             for k, (p, d) in enumerate(outs):

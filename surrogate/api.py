@@ -5,6 +5,11 @@
     >>> pred = m.predict({"d0": 9e-6, "phi": [1.0, 2.0]})   # missing names: reference values
     >>> pred.pressure.shape, pred.distribution.shape         # (2, 196) [Pa], (2, 30, 30)
 
+A model trained with ``--pressure-head gp`` carries a PCA + GP pressure branch
+(:class:`~surrogate.gp.GPPressure`): its pressure comes from the GP, its distribution from
+the network(s), and ``*_std`` / ``pressure_normalised_var`` are the GP's latent variance
+(for a single network too) instead of the member spread.
+
 Physical parameter values are validated against the checkpoint's
 :class:`~calendaring.data.params.ParameterSpace` (:class:`ConfigError` naming the key, the value
 and the allowed range). Pressures come back in Pa, distributions as probabilities
@@ -32,6 +37,7 @@ from surrogate.checkpoint import (
 )
 from surrogate.data import Normalisation
 from surrogate.ensemble import ensemble_forward
+from surrogate.gp import GPPressure
 from surrogate.model import DualBranchMLP, ModelConfig
 
 PREDICT_BATCH = 2048  # rows per forward pass in predict()
@@ -51,8 +57,9 @@ class Prediction:
     ``pressure`` is ``pressure_from_normalised(pressure_normalised)``, the ensemble mean
     taken in normalised units; ``pressure_std`` is the standard deviation of the members'
     pressures in Pa (None for a single model), ``pressure_normalised_var`` the member
-    variance in normalised units. ``defaulted`` names the parameters that were not given
-    and took the space's reference values.
+    variance in normalised units (with a GP pressure branch both are the GP's: its latent
+    variance, and the standard deviation in Pa to first order). ``defaulted`` names the
+    parameters that were not given and took the space's reference values.
     """
 
     params: np.ndarray  # (n, 8) physical
@@ -78,7 +85,7 @@ class SurrogateModel:
     def __init__(self, members: Sequence[DualBranchMLP], normalisation: Normalisation,
                  space: ParameterSpace, depth, load_edges, diameter_edges,
                  load_scale: str = "log", info: dict | None = None,
-                 snapshots: dict | None = None):
+                 snapshots: dict | None = None, pressure_gp: GPPressure | None = None):
         if not members:
             raise ConfigError("members", 0, "at least one model")
         self.members = list(members)
@@ -93,6 +100,14 @@ class SurrogateModel:
         self.load_scale = load_scale
         self.info = dict(info or {})
         self.snapshots = dict(snapshots or {})
+        self.pressure_gp = pressure_gp
+        if pressure_gp is not None:
+            pressure_gp.eval()
+            if pressure_gp.shape["n_pressure"] != self.config.n_pressure or \
+                    pressure_gp.shape["n_inputs"] != len(space):
+                raise ConfigError("pressure_gp shape", pressure_gp.shape,
+                                  f"{self.config.n_pressure} depths and {len(space)} inputs "
+                                  "(the network's)")
 
     # ------------------------------------------------------------------ description
     @property
@@ -103,13 +118,18 @@ class SurrogateModel:
     def n_members(self) -> int:
         return len(self.members)
 
+    @property
+    def pressure_head(self) -> str:
+        """"gp" when the pressure comes from a PCA + GP branch, else "mlp"."""
+        return "mlp" if self.pressure_gp is None else "gp"
+
     def member(self, i: int) -> SurrogateModel:
         """Ensemble member ``i`` as a single model (same normalisation, space and bins)."""
         if not 0 <= int(i) < self.n_members:
             raise ConfigError("member", i, f"an index in [0, {self.n_members - 1}]")
         return SurrogateModel([self.members[int(i)]], self.normalisation, self.space,
                               self.depth, self.load_edges, self.diameter_edges,
-                              self.load_scale, self.info)
+                              self.load_scale, self.info, pressure_gp=self.pressure_gp)
 
     @property
     def load_centres(self) -> np.ndarray:
@@ -121,6 +141,8 @@ class SurrogateModel:
 
     def __repr__(self) -> str:
         kind = f"ensemble of {self.n_members}" if self.is_ensemble else "single model"
+        if self.pressure_gp is not None:
+            kind += f", PCA + GP pressure ({self.pressure_gp.shape['n_components']} components)"
         return (f"SurrogateModel({kind}, {len(self.space)} inputs, {len(self.depth)} depths, "
                 f"{self.config.dist_shape} bins)")
 
@@ -143,11 +165,14 @@ class SurrogateModel:
 
         Returns:
             ``p_norm (n, 196)``, ``dist (n, 30, 30)``, ``p_norm_var (n, 196)`` (ensemble
-            member variance, normalised units) or None for a single model.
+            member variance, normalised units) or None for a single model; with a GP
+            pressure branch its mean and latent variance.
         """
         for m in self.members:
             m.eval()
         p, d, p_var, _ = ensemble_forward(self.members, u)
+        if self.pressure_gp is not None:
+            p, p_var = self.pressure_gp(u)
         return p, d, p_var
 
     def predict_unit(self, u, batch_size: int = PREDICT_BATCH,
@@ -259,6 +284,16 @@ class SurrogateModel:
             p_std_pa.append(self.pressure_from_normalised(p.double()).std(0, unbiased=False))
             d_std.append(d.std(0, unbiased=False))
 
+        if self.pressure_gp is not None:
+            p_mean, p_var, p_std_pa = [], [], []
+            span = self.normalisation.span
+            for s in range(0, max(n, 1), max(int(batch_size), 1)):
+                p, v = self.pressure_gp(ut[s:s + batch_size].double())
+                c = p * span + self.normalisation.cbrt_min  # cbrt(P)
+                p_mean.append(p)
+                p_var.append(v)
+                p_std_pa.append(3.0 * c * c * span * v.sqrt())  # |dP/dx| sd, to first order
+
         def cat(parts, dtype=np.float64):
             if not parts:
                 return None
@@ -291,8 +326,18 @@ class SurrogateModel:
             "n_parameters_per_member": r0.model.n_parameters(),
         }
         meta.update(info or {})
+        gp = None
+        if getattr(r0.config, "pressure_head", "mlp") == "gp":
+            from surrogate.gp import fit_pressure_gp
+
+            rows = np.sort(np.concatenate([r0.rows["train"], r0.rows["val"]]))
+            gp, meta["pressure_gp"] = fit_pressure_gp(
+                ds.unit_params[rows], r0.normalisation.normalise(ds.pressure[rows]),
+                r0.config.gp_components, r0.config.seed)
+            meta["pressure_gp"]["rows"] = "the training and validation split"
         return cls([r.model for r in results], r0.normalisation, ds.space, ds.depth,
-                   ds.load_edges, ds.diameter_edges, ds.load_scale, meta, r0.snapshots)
+                   ds.load_edges, ds.diameter_edges, ds.load_scale, meta, r0.snapshots,
+                   pressure_gp=gp)
 
     def save(self, path: str | Path) -> Path:
         """Write the self-describing checkpoint atomically (see :mod:`surrogate.checkpoint`)."""
@@ -307,6 +352,9 @@ class SurrogateModel:
             "load_scale": self.load_scale,
             "info": info_to_json(self.info),
             "snapshots": snapshots_to_tensors(self.snapshots),
+            **({} if self.pressure_gp is None else {"pressure_gp": {
+                "shape": dict(self.pressure_gp.shape),
+                "state": self.pressure_gp.state_dict()}}),
         })
 
 
@@ -325,11 +373,15 @@ def load(path: str | Path) -> SurrogateModel:
             m.load_state_dict(state)
             members.append(m)
         space = ParameterSpace.from_json(json.loads(obj["parameter_space"]))
+        gp = None
+        if obj.get("pressure_gp") is not None:
+            gp = GPPressure(**{k: int(v) for k, v in obj["pressure_gp"]["shape"].items()})
+            gp.load_state_dict(obj["pressure_gp"]["state"])
         model = SurrogateModel(
             members, Normalisation.from_dict(obj["normalisation"]), space,
             obj["depth"].numpy(), obj["load_edges"].numpy(), obj["diameter_edges"].numpy(),
             str(obj.get("load_scale", "log")), json.loads(obj.get("info", "{}")),
-            snapshots_from_tensors(obj.get("snapshots")))
+            snapshots_from_tensors(obj.get("snapshots")), pressure_gp=gp)
     except CheckpointError:
         raise
     except Exception as err:

@@ -53,7 +53,8 @@ def cmd_train(args) -> int:
     roles = ("train", "replicate") if args.include_replicates else ("train",)
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
                       weight_decay=args.weight_decay, patience=args.patience, seed=args.seed,
-                      mse_weight=args.mse_weight, kl_weight=args.kl_weight, train_roles=roles)
+                      mse_weight=args.mse_weight, kl_weight=args.kl_weight, train_roles=roles,
+                      pressure_head=args.pressure_head, gp_components=args.gp_components)
     model_config = ModelConfig(dropout=args.dropout)
     t0 = time.perf_counter()
     results = train_ensemble(ds, args.ensemble, cfg, model_config, progress=not args.quiet)
@@ -72,6 +73,12 @@ def cmd_train(args) -> int:
         stop = " (early stop)" if r.history.stopped_early else ""
         print(f"member {k}: best epoch {r.history.best_epoch} of {len(r.history.train_total)}"
               f"{stop}")
+    gp = model.info.get("pressure_gp")
+    if gp:
+        print(f"pressure from PCA + GP: {gp['n_components']} components "
+              f"({100 * sum(gp['explained_variance_ratio']):.3g} % of the curves' variance) "
+              f"fitted on {gp['n_rows']} runs in {gp['fit_seconds']:.1f} s; the network's "
+              "pressure head is trained but not used")
     print(loss_table_markdown(results[0].loss_table, "Loss per branch (member 0)"), end="")
     for line in summary_lines({"metrics": model.info["metrics"]}):
         print(line)
@@ -112,7 +119,9 @@ def cmd_learning_curve(args) -> int:
     ds = read_dataset(args.dataset)
     out_dir = output_path(args.out_dir, "--out-dir", folder=True)
     cfg = TrainConfig(epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-                      patience=args.patience, seed=args.seed)
+                      patience=args.patience, seed=args.seed, mse_weight=args.mse_weight,
+                      kl_weight=args.kl_weight, pressure_head=args.pressure_head,
+                      gp_components=args.gp_components)
     model_config = config_for(ds, dropout=args.dropout)
     res = learning_curve(ds, args.sizes, args.repeats, cfg, model_config, out_dir,
                          target=args.target, progress=not args.quiet)
@@ -189,6 +198,15 @@ def cmd_predict(args) -> int:
     return EXIT_OK
 
 
+def heads(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--pressure-head", choices=("mlp", "gp"), default="mlp",
+                   help="where predictions take the pressure from: the network's head (the "
+                        "paper's) or a PCA + GP branch fitted on the same training rows "
+                        "(default mlp)")
+    p.add_argument("--gp-components", type=int, default=8,
+                   help="principal components of the GP branch (default 8)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = ContractParser(prog="surrogate", description="Dual-branch MLP surrogate of "
                        "the calendering pressure curve and breakage distribution.")
@@ -214,6 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--dropout", type=float, default=0.3,
                    help="dropout probability throughout the network (default 0.3, as the "
                         "paper)")
+    heads(t)
     t.add_argument("--include-replicates", action="store_true",
                    help="also split and train on 'replicate' rows (default: 'train' rows "
                         "only; 'holdout' rows are never used)")
@@ -252,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--lr", type=float, default=1e-3)
     c.add_argument("--patience", type=int, default=20)
     c.add_argument("--dropout", type=float, default=0.3)
+    c.add_argument("--mse-weight", type=float, default=0.7)
+    c.add_argument("--kl-weight", type=float, default=0.3)
+    heads(c)
     c.add_argument("--seed", type=int, default=0, help="seed of the shuffles and weights")
     c.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     c.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -141,7 +141,10 @@ def model_metrics(model: SurrogateModel, ds: Dataset, rows, pred=None) -> dict:
         err = np.abs(pred.pressure_normalised - model.normalise_pressure(sub.pressure))
         out["ensemble"] = {"pressure_std_normalised_mean": float(sd.mean()),
                            "pressure_std_Pa_mean": float(pred.pressure_std.mean()),
-                           "coverage_2sigma": float(np.mean(err <= 2 * sd))}
+                           "coverage_2sigma": float(np.mean(err <= 2 * sd)),
+                           "source": "GP latent variance"
+                           if getattr(model, "pressure_gp", None) is not None
+                           else "member spread"}
     return out
 
 

@@ -123,6 +123,7 @@ def learning_curve(ds: Dataset, sizes=None, repeats: int = 1, cfg: TrainConfig |
         kl_simulations: draws of the perfect-model KL (:func:`perfect_model_kl`).
         progress: a tqdm bar on stderr.
     """
+    from surrogate.gp import fit_pressure_gp
     from surrogate.train import config_for
 
     cfg = cfg or TrainConfig()
@@ -159,8 +160,12 @@ def learning_curve(ds: Dataset, sizes=None, repeats: int = 1, cfg: TrainConfig |
         t0 = time.perf_counter()
         net, norm, trainer, _ = fit_rows(ds, fit, val, replace(cfg, snapshot_epochs=()),
                                          model_config, progress=False)
+        gp = None
+        if cfg.pressure_head == "gp":
+            gp, _ = fit_pressure_gp(ds.unit_params[use], norm.normalise(ds.pressure[use]),
+                                    cfg.gp_components, cfg.seed)
         sm = SurrogateModel([net], norm, ds.space, ds.depth, ds.load_edges, ds.diameter_edges,
-                            ds.load_scale, {"train_config": cfg.to_dict()})
+                            ds.load_scale, {"train_config": cfg.to_dict()}, pressure_gp=gp)
         h = seed_mean_comparison(sm, ds, kl_simulations=kl_simulations)
         p = h["metrics"]["pressure"]
         points.append({

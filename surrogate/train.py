@@ -35,6 +35,8 @@ from surrogate.data import (
 from surrogate.losses import KL_WEIGHT, MSE_WEIGHT, SurrogateLoss
 from surrogate.model import DualBranchMLP, ModelConfig
 
+PRESSURE_HEADS = ("mlp", "gp")
+
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TrainConfig:
@@ -55,9 +57,15 @@ class TrainConfig:
     split: tuple[float, float, float] = (0.8, 0.1, 0.1)
     snapshot_epochs: tuple[int, ...] = (10, 40, 80)  # Fig. 5 panels
     collector_max: int = 512  # samples kept per snapshot
+    # "gp": predictions take the pressure from a PCA + GP branch fitted on the training and
+    # validation rows (surrogate.gp); the network is trained as usual and gives the
+    # distribution
+    pressure_head: str = "mlp"
+    gp_components: int = 8  # principal components of the GP branch
 
     def __post_init__(self) -> None:
-        for key, lo in (("epochs", 1), ("batch_size", 1), ("patience", 0), ("collector_max", 1)):
+        for key, lo in (("epochs", 1), ("batch_size", 1), ("patience", 0), ("collector_max", 1),
+                        ("gp_components", 1)):
             v = getattr(self, key)
             if not isinstance(v, int | np.integer) or v < lo:
                 raise ConfigError(f"--{key.replace('_', '-')}", v, f"an integer >= {lo}")
@@ -69,6 +77,8 @@ class TrainConfig:
             v = getattr(self, key)
             if not (v >= 0 and np.isfinite(v)):
                 raise ConfigError(f"--{key.replace('_', '-')}", v, "a finite number >= 0")
+        if self.pressure_head not in PRESSURE_HEADS:
+            raise ConfigError("--pressure-head", self.pressure_head, f"one of {PRESSURE_HEADS}")
         if self.mse_weight + self.kl_weight <= 0:
             raise ConfigError("--mse-weight + --kl-weight", self.mse_weight + self.kl_weight,
                               "> 0 (not both weights zero)")
@@ -344,5 +354,5 @@ def train(ds: Dataset, cfg: TrainConfig | None = None, model_config: ModelConfig
                        seconds=seconds)
 
 
-__all__ = ["Collector", "History", "TrainConfig", "TrainResult", "Trainer", "config_for",
-           "fit_rows", "make_split", "train"]
+__all__ = ["PRESSURE_HEADS", "Collector", "History", "TrainConfig", "TrainResult", "Trainer",
+           "config_for", "fit_rows", "make_split", "train"]
