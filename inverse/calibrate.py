@@ -120,6 +120,7 @@ def _calibrate_target(model, target: Target, *, optimiser: OptimiserConfig | Non
         "created": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "model": {"path": str(model_path), "is_ensemble": bool(getattr(model, "is_ensemble",
                                                                         False)),
+                  "pressure_head": str(getattr(model, "pressure_head", "mlp")),
                   "parameter_space": space.to_json()},
         "fixed": fixed_phys, "seed": optimiser.seed,
         "loss": {**terms, "weights": loss.weights, "config": loss.config.to_json()},
