@@ -21,7 +21,15 @@ nearest 0 and 19.5 um (or the end of a shorter stroke).
 Run files go to ``<out_dir>/runs/<name>.h5``. A run whose file exists and reads back is not
 run again (resume); a crashed run with a checkpoint continues from it; failures are recorded
 in the report and do not stop the other runs. ``compare.json`` and the PNGs are written
-atomically.
+atomically. Each case's microstructure is analysed as soon as its run ends.
+
+Beside each run file, ``<name>.record.h5`` keeps what the report needs of the run (its
+summary, the raw pressure trace, the initial AM diameters, a digest of the initial
+packing; a few tens of kB) and ``<name>.microstructure.json`` the analysis. A case whose
+run file is gone (a fresh machine) but whose record and analysis are there, made for the
+same preset, seed and settings, is not run again (status ``kept``): a study of many hours
+survives a lost machine case by case once those two files are kept
+(``scripts/sweep-keep.sh``).
 
     analysis compare --preset quick --out-dir studies/ --studies r0r1,psd
 """
@@ -238,6 +246,102 @@ def execute(case: Case, out: Path, preset: str, seed: int, extra_sets: Sequence[
         tmp.unlink(missing_ok=True)
     return {"name": case.name, "status": "failed", "returncode": rc, "timed_out": timed_out,
             "wall_time_s": wall, "output_tail": list(tail), "command": cmd}
+
+
+# ---------------------------------------------------------------------- case records
+RECORD_VERSION = 1
+
+
+def case_key(case: Case, preset: str, seed: int, extra_sets: Sequence[str] = ()) -> dict:
+    """What makes a case's run: a kept record is reused only for the same key."""
+    return {"version": RECORD_VERSION, "case": case.name, "preset": preset,
+            "seed": int(seed), "no_breakage": bool(case.no_breakage),
+            "sets": [format_override(k, v) for k, v in sorted(case.sets.items())],
+            "extra_sets": [str(x) for x in extra_sets]}
+
+
+def _packing_sha256(rec) -> str | None:
+    """Digest of the initial packing (positions, radii, materials of snapshot 0): equal
+    digests mean bitwise-equal packings."""
+    import hashlib
+
+    if not rec.snapshots:
+        return None
+    sn = rec.snapshots[0]
+    h = hashlib.sha256()
+    for a in (sn.position, sn.radius, sn.material):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _initial_am_diameters(rec) -> np.ndarray:
+    if not rec.snapshots or "AM" not in rec.config.material_names:
+        return np.zeros(0)
+    sn = rec.snapshots[0]
+    return 2 * sn.radius[sn.material == rec.config.material_names.index("AM")]
+
+
+def run_view(rec) -> dict:
+    """What the report takes from one run (a ``RunRecord``): its summary, the raw pressure
+    trace, the initial AM diameters, the packing digest, the snapshots to analyse and the
+    identity of the run file (config hash, creation time) that keys the analysis cache."""
+    return {"path": str(rec.path), "summary": run_summary(rec),
+            "pressure": {k: np.asarray(rec.pressure[k]) for k in ("step", "depth", "value")},
+            "am_diameters": _initial_am_diameters(rec),
+            "packing_sha256": _packing_sha256(rec), "targets": target_snapshots(rec),
+            "config_hash": rec.info.get("config_hash"), "created": rec.created}
+
+
+def write_case_record(path: Path, rec, key: dict) -> Path:
+    """Keep :func:`run_view` of a finished run in a small HDF5 file (atomic: written under a
+    temporary name, then renamed). Every dataset carries its unit."""
+    import json
+
+    import h5py
+
+    from calendaring import json_safe
+
+    view = run_view(rec)
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["kind"] = "analysis.compare case record"
+            f.attrs["key"] = json.dumps(key, sort_keys=True)
+            meta = {k: view[k] for k in ("path", "summary", "packing_sha256", "targets",
+                                         "config_hash", "created")}
+            f.attrs["view"] = json.dumps(json_safe(meta))
+            for name, unit in (("step", "1"), ("depth", "m"), ("value", "Pa")):
+                d = f.create_dataset(f"pressure/{name}", data=view["pressure"][name],
+                                     compression="gzip", shuffle=True)
+                d.attrs["unit"] = unit
+            d = f.create_dataset("am_diameter", data=view["am_diameters"],
+                                 compression="gzip", shuffle=True)
+            d.attrs["unit"] = "m"
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_case_record(path: Path, key: dict) -> dict | None:
+    """The kept :func:`run_view` of a case, or None when the record is missing, unreadable
+    or made for another key (preset, seed, settings)."""
+    import json
+
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            if json.loads(f.attrs["key"]) != json.loads(json.dumps(key, sort_keys=True)):
+                return None
+            view = json.loads(f.attrs["view"])
+            view["pressure"] = {k: f[f"pressure/{k}"][()] for k in ("step", "depth", "value")}
+            view["am_diameters"] = f["am_diameter"][()]
+    except (OSError, KeyError, ValueError):
+        return None
+    return view
 
 
 # ---------------------------------------------------------------------- report
@@ -470,20 +574,68 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
     if progress:
         print(f"compare: {len(cases)} runs ({', '.join(c.name for c in cases)}), preset "
               f"{preset}, seed {seed}, {jobs} at a time", file=sys.stderr, flush=True)
+    mk = dict(micro_kw or {})
+    mk.setdefault("device", "cpu")
+    # in the cache key: a cache of the former two-point default is not reused
+    mk.setdefault("resolution", "converge")
+    mk.pop("progress", None)
+
+    def micro_key(name, view):
+        snaps = view["targets"]
+        if initial == "none" or (initial == "R1" and name != "R1"):
+            snaps = snaps[1:] or snaps  # the final one (a run of one snapshot keeps it)
+        return {"snapshots": snaps, "settings": {k: mk[k] for k in sorted(mk)},
+                "run_config_hash": view["config_hash"], "created": view["created"]}
+
+    def cached_micro(name, view):
+        old = _read_json(runs_dir / f"{name}.microstructure.json")
+        if old is not None and old.get("key") == micro_key(name, view) \
+                and "error" not in old["value"]:
+            return {**old["value"], "cached": True}
+        return None
 
     def go(case):
-        st = execute(case, runs_dir / f"{case.name}.h5", preset, seed, extra_sets, timeout,
-                     progress, lock)
+        out = runs_dir / f"{case.name}.h5"
+        key = case_key(case, preset, seed, extra_sets)
+        view = st = None
+        if not (out.exists() and _readable(out)):
+            kept = read_case_record(runs_dir / f"{case.name}.record.h5", key)
+            if kept is not None and (not micro or cached_micro(case.name, kept) is not None):
+                view, st = kept, {"name": case.name, "status": "kept",
+                                  "file": str(runs_dir / f"{case.name}.record.h5")}
+        if st is None:
+            st = execute(case, out, preset, seed, extra_sets, timeout, progress, lock)
         if progress:
             with lock:
                 print(f"compare: {case.name} {st['status']} "
                       f"({time.perf_counter() - t0:.0f} s elapsed)", file=sys.stderr,
                       flush=True)
-        return st
+        if st["status"] == "failed":
+            return st, None, None
+        if view is None:
+            rec = read_run(st["file"])
+            view = run_view(rec)
+            write_case_record(runs_dir / f"{case.name}.record.h5", rec, key)
+        if not micro:
+            return st, view, None
+        val = cached_micro(case.name, view)
+        if val is None:
+            mkey = micro_key(case.name, view)
+            if progress:
+                with lock:
+                    print(f"compare: microstructure of {case.name} at snapshots "
+                          f"{mkey['snapshots']}", file=sys.stderr, flush=True)
+            val = microstructure(Path(view["path"]), mkey["snapshots"], progress=progress,
+                                 **mk)
+            if "error" not in val:
+                atomic_write_json(runs_dir / f"{case.name}.microstructure.json",
+                                  {"key": mkey, "value": val})
+        return st, view, val
 
     with ThreadPoolExecutor(max_workers=int(jobs)) as pool:
-        statuses = list(pool.map(go, cases))
-    ok = {st["name"]: read_run(st["file"]) for st in statuses if st["status"] != "failed"}
+        results = list(pool.map(go, cases))
+    statuses = [st for st, _, _ in results]
+    ok = {st["name"]: view for st, view, _ in results if view is not None}
     report = {"preset": preset, "seed": seed, "studies": list(studies), "initial": initial,
               "extra_sets": list(extra_sets),
               "units": "SI (m, Pa, N); tortuosity, D_eff (relative) and porosity dimensionless",
@@ -491,49 +643,25 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
                         "sets": c.sets, "no_breakage": c.no_breakage}
                        for st, c in zip(statuses, cases, strict=True)],
               "failures": [st for st in statuses if st["status"] == "failed"],
-              "summaries": {n: run_summary(r) for n, r in ok.items()}}
+              "summaries": {n: v["summary"] for n, v in ok.items()}}
     figures = []
     if micro:
-        mk = dict(micro_kw or {})
-        mk.setdefault("device", "cpu")
-        # in the cache key: a cache of the former two-point default is not reused
-        mk.setdefault("resolution", "converge")
-        mk.pop("progress", None)
-        report["microstructure"] = {}
-        for n, r in ok.items():
-            snaps = target_snapshots(r)
-            if initial == "none" or (initial == "R1" and n != "R1"):
-                snaps = snaps[1:] or snaps  # the final one (a run of one snapshot keeps it)
-            cache = runs_dir / f"{n}.microstructure.json"
-            key = {"snapshots": snaps, "settings": {k: mk[k] for k in sorted(mk)},
-                   "run_config_hash": r.info.get("config_hash"), "created": r.created}
-            old = _read_json(cache)
-            if old is not None and old.get("key") == key and "error" not in old["value"]:
-                report["microstructure"][n] = {**old["value"], "cached": True}
-                continue
-            if progress:
-                print(f"compare: microstructure of {n} at snapshots {snaps}", file=sys.stderr,
-                      flush=True)
-            val = microstructure(r.path, snaps, progress=progress, **mk)
-            report["microstructure"][n] = val
-            if "error" not in val:
-                atomic_write_json(cache, {"key": key, "value": val})
+        report["microstructure"] = {st["name"]: val for st, view, val in results
+                                    if view is not None}
         have = {n: v["table"] for n, v in report["microstructure"].items() if v.get("table")}
         if have:
             figures.append(plot_micro_table(have, out_dir / "fig13bcd_microstructure.png"))
 
     if "r0r1" in studies and "R0" in ok and "R1" in ok:
         r0, r1 = ok["R0"], ok["R1"]
-        div = _first_divergence(r1.pressure, r0.pressure)
+        div = _first_divergence(r1["pressure"], r0["pressure"])
         s1 = report["summaries"]["R1"]
         div["first_breakage_depth_m"] = s1["first_breakage_depth_m"]
         div["final_pressure_ratio_R1_over_R0"] = (
             s1["final_pressure_Pa"] / report["summaries"]["R0"]["final_pressure_Pa"]
             if report["summaries"]["R0"]["final_pressure_Pa"] else None)
-        div["same_initial_packing"] = bool(
-            r0.snapshots and r1.snapshots
-            and np.array_equal(r0.snapshots[0].position, r1.snapshots[0].position)
-            and np.array_equal(r0.snapshots[0].radius, r1.snapshots[0].radius))
+        div["same_initial_packing"] = bool(r0["packing_sha256"] is not None
+                                           and r0["packing_sha256"] == r1["packing_sha256"])
         report["r0r1"] = div
         figures.append(plot_pressure(
             {"R0 (no breakage)": _raw(r0), "R1 (breakage)": _raw(r1)},
@@ -801,18 +929,16 @@ def plot_seeds(pooled: dict, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def _raw(rec) -> dict:
-    return {"depth": rec.pressure["depth"], "pressure": rec.pressure["value"]}
+def _raw(view) -> dict:
+    return {"depth": view["pressure"]["depth"], "pressure": view["pressure"]["value"]}
 
 
-def _am_diameters(rec) -> np.ndarray:
-    if not rec.snapshots or "AM" not in rec.config.material_names:
-        return np.zeros(0)
-    sn = rec.snapshots[0]
-    return 2 * sn.radius[sn.material == rec.config.material_names.index("AM")]
+def _am_diameters(view) -> np.ndarray:
+    return view["am_diameters"]
 
 
 __all__ = ["CLAIMS", "INITIAL_CHOICES", "PAPER_FINAL", "PSD_CASES", "STUDIES", "TABLE5", "Case",
-           "compare", "compare_seeds", "execute", "final_levels", "plan", "plot_seeds",
-           "pool_seeds", "resolution_check", "run_command", "run_summary", "seed_metrics",
-           "target_snapshots", "truncation_sigmas"]
+           "case_key", "compare", "compare_seeds", "execute", "final_levels", "plan",
+           "plot_seeds", "pool_seeds", "read_case_record", "resolution_check", "run_command",
+           "run_summary", "run_view", "seed_metrics", "target_snapshots", "truncation_sigmas",
+           "write_case_record"]

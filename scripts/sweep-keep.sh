@@ -4,6 +4,9 @@
 # each finished run, a few tens of kB a run; no run files, no packings) are copied to KEEP;
 # with --restore they are copied back into a sweep folder, which `calendaring sweep` then
 # resumes: a run with a complete digest counts as finished (calendaring/data/sweep.py).
+# An `analysis compare` folder (no manifest.json) keeps its case records and analyses
+# ([seed-*/]runs/*.record.h5, *.microstructure.json), which a rerun of the same compare
+# command takes instead of running those cases again (analysis/compare.py).
 #   bash scripts/sweep-keep.sh RUNS KEEP              # e.g. /work/sweep-rve data/sweeps/rve
 #   bash scripts/sweep-keep.sh --restore KEEP RUNS    # on a fresh machine, before the sweep
 # Every file is written to a temporary name and renamed; files already in the destination
@@ -16,9 +19,16 @@ if [ $# -ne 2 ]; then
     exit 2
 fi
 src=$1 dst=$2
+kind=sweep
 if [ ! -f "$src/manifest.json" ]; then
-    echo "sweep-keep: $src/manifest.json not found (not a sweep folder or keep folder)" >&2
-    exit 2
+    if [ -n "$(find "$src" -maxdepth 3 -path '*runs/*.record.h5' -print -quit 2>/dev/null)" ]
+    then
+        kind=compare
+    else
+        echo "sweep-keep: neither $src/manifest.json nor $src/[seed-*/]runs/*.record.h5" \
+            "found (not a sweep, compare or keep folder)" >&2
+        exit 2
+    fi
 fi
 copied=0
 copy() {  # copy() REL: src/REL -> dst/REL through a temporary name
@@ -31,17 +41,27 @@ copy() {  # copy() REL: src/REL -> dst/REL through a temporary name
     mv -f "$to.tmp-keep" "$to"
     copied=$((copied + 1))
 }
-copy manifest.json
-for dir in designs digests; do
-    [ -d "$src/$dir" ] || continue
+if [ "$kind" = sweep ]; then
+    copy manifest.json
+    for dir in designs digests; do
+        [ -d "$src/$dir" ] || continue
+        while IFS= read -r -d '' f; do
+            case "$f" in *.tmp*) continue ;; esac
+            copy "${f#"$src"/}"
+        done < <(find "$src/$dir" -type f -print0)
+    done
+    n=0
+    if [ -d "$dst/digests" ]; then n=$(find "$dst/digests" -name '*.h5' | wc -l); fi
+    echo "sweep-keep: $copied files copied to $dst ($n digests there)"
+else
     while IFS= read -r -d '' f; do
-        case "$f" in *.tmp*) continue ;; esac
+        case "$f" in */.*) continue ;; esac  # temporary files of an atomic write
         copy "${f#"$src"/}"
-    done < <(find "$src/$dir" -type f -print0)
-done
-n=0
-if [ -d "$dst/digests" ]; then n=$(find "$dst/digests" -name '*.h5' | wc -l); fi
-echo "sweep-keep: $copied files copied to $dst ($n digests there)"
+    done < <(find "$src" -maxdepth 3 -path '*runs/*' \( -name '*.record.h5' \
+        -o -name '*.microstructure.json' \) -type f -print0)
+    n=$(find "$dst" -maxdepth 3 -path '*runs/*.record.h5' | wc -l)
+    echo "sweep-keep: $copied files copied to $dst ($n case records there)"
+fi
 # Kept files that git ignores would never be committed, and the sweep would be lost with the
 # machine: refuse loudly instead of keeping them silently.
 if [ "$restore" = 0 ] && git -C "$dst" rev-parse --is-inside-work-tree > /dev/null 2>&1; then

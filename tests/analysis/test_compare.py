@@ -332,3 +332,62 @@ def test_compare_seeds_runs_each_seed_in_its_folder(tmp_path, monkeypatch, capsy
     rc = cli.main(["compare", "--preset", "tiny", "--out-dir", str(tmp_path / "t"),
                    "--studies", "r0r1", "--seeds", "1", "1", "--quiet"])
     assert rc == 2 and "--seeds" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_r0_r1_tiny_kept_records_replace_lost_run_files(tiny_r0r1, tmp_path, monkeypatch):
+    """A fresh machine: the run files are gone, only the kept case records and analyses
+    are there. The cases are not run again and the report is the same as from the run
+    files; a record of another seed or setting is not taken."""
+    import shutil
+
+    import analysis.compare as cmp
+    micro = pytest.importorskip("analysis.microstructure")
+    out, _ = tiny_r0r1
+
+    def fake_analyse_run(run_file, snapshots=None, **kw):
+        class Fake:
+            def to_json(self):
+                return {"snapshots": [{"index": k, "depth_m": 1e-6 * k,
+                                       "voxel_porosity": 0.4, "tortuosity": 1.5 + k,
+                                       "D_eff": 0.2, "extrapolated": None}
+                                      for k in snapshots]}
+        return Fake()
+
+    monkeypatch.setattr(micro, "analyse_run", fake_analyse_run)
+    kw = dict(preset="tiny", studies=["r0r1"], seed=0, extra_sets=TINY_SETS,
+              micro_kw={"voxels_per_diameter": 3.0}, progress=False)
+    full = compare(out, **kw)
+    assert (out / "runs" / "R1.record.h5").exists()  # written for a run that existed
+    fresh = tmp_path / "fresh"
+    (fresh / "runs").mkdir(parents=True)
+    for f in (out / "runs").glob("R[01].*"):
+        if f.name.endswith((".record.h5", ".microstructure.json")):
+            shutil.copy(f, fresh / "runs" / f.name)
+    rec = cmp.read_case_record(fresh / "runs" / "R1.record.h5",
+                               cmp.case_key(plan(["r0r1"], "tiny")[0], "tiny", 0, TINY_SETS))
+    from calendaring import read_run
+
+    r1 = read_run(out / "runs" / "R1.h5")
+    np.testing.assert_array_equal(rec["pressure"]["value"], r1.pressure["value"])
+    assert rec["pressure"]["value"].dtype == np.float64
+    assert cmp.read_case_record(fresh / "runs" / "R1.record.h5",
+                                cmp.case_key(plan(["r0r1"], "tiny")[0], "tiny", 1,
+                                             TINY_SETS)) is None
+
+    def no_subprocess(*a, **k):
+        raise AssertionError("a kept case was run again")
+
+    monkeypatch.setattr(cmp.subprocess, "Popen", no_subprocess)
+    rep = compare(fresh, **kw)
+    assert [r["status"] for r in rep["runs"]] == ["kept", "kept"]
+    assert rep["r0r1"] == full["r0r1"] and rep["r0r1"]["same_initial_packing"]
+    for n in ("R0", "R1"):
+        assert rep["summaries"][n]["breakage_events"] == full["summaries"][n]["breakage_events"]
+        assert rep["summaries"][n]["curve"] == full["summaries"][n]["curve"]
+        assert rep["microstructure"][n]["table"] == full["microstructure"][n]["table"]
+    assert (fresh / "r0r1_pressure.png").stat().st_size > 1000
+    # without its analysis a kept record is not enough: the case must run again
+    (fresh / "runs" / "R0.microstructure.json").unlink()
+    with pytest.raises(AssertionError, match="run again"):
+        compare(fresh, **kw)

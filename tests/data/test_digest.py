@@ -149,7 +149,42 @@ def test_sweep_keep_round_trip_resumes_a_sweep_on_a_fresh_machine(sweep_folder, 
     assert "newer" in (fresh / "manifest.json").read_text()
     bad = subprocess.run(["bash", str(script), str(tmp_path / "nothing"), str(keep)],
                          capture_output=True, text=True)
-    assert bad.returncode == 2 and "manifest.json not found" in bad.stderr
+    assert bad.returncode == 2 and "not a sweep, compare or keep folder" in bad.stderr
+
+
+def test_sweep_keep_round_trip_of_a_compare_study(tmp_path):
+    """A compare folder (no manifest.json) keeps its case records and analyses, seed by
+    seed, never its run files or the temporaries of an atomic write; a restore never
+    replaces them; the repository's keep folder (data/compare/) does not ignore records."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    script = root / "scripts" / "sweep-keep.sh"
+    study, keep, fresh = tmp_path / "study", tmp_path / "keep", tmp_path / "fresh"
+    kept = ["seed-0/runs/R1.record.h5", "seed-0/runs/R1.microstructure.json",
+            "seed-1/runs/R0.record.h5"]
+    for rel in [*kept, "seed-0/runs/R1.h5", "seed-0/runs/.R0.record.h5.tmp-7",
+                "seed-0/compare.json"]:
+        (study / rel).parent.mkdir(parents=True, exist_ok=True)
+        (study / rel).write_text(rel)
+    res = subprocess.run(["bash", str(script), str(study), str(keep)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0 and "3 files copied" in res.stdout, res.stderr
+    assert sorted(str(p.relative_to(keep)) for p in keep.rglob("*") if p.is_file()) == \
+        sorted(kept)
+    subprocess.run(["bash", str(script), "--restore", str(keep), str(fresh)], check=True,
+                   capture_output=True)
+    assert all((fresh / rel).read_text() == rel for rel in kept)
+    (fresh / kept[1]).write_text("newer analysis")
+    subprocess.run(["bash", str(script), "--restore", str(keep), str(fresh)], check=True,
+                   capture_output=True)
+    assert (fresh / kept[1]).read_text() == "newer analysis"
+    if (root / ".git").exists():
+        probe = "data/compare/rve/seed-0/runs/R1.record.h5"
+        res = subprocess.run(["git", "-C", str(root), "check-ignore", "-q", "--no-index",
+                              probe], capture_output=True)
+        assert res.returncode == 1, f"{probe} is git-ignored"
 
 
 def test_sweep_keep_refuses_a_keep_folder_that_git_ignores(sweep_folder, tmp_path):
