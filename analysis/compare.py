@@ -615,7 +615,9 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
         if view is None:
             rec = read_run(st["file"])
             view = run_view(rec)
-            write_case_record(runs_dir / f"{case.name}.record.h5", rec, key)
+            have = read_case_record(runs_dir / f"{case.name}.record.h5", key)
+            if have is None or have["created"] != view["created"]:  # kept files stay put
+                write_case_record(runs_dir / f"{case.name}.record.h5", rec, key)
         if not micro:
             return st, view, None
         val = cached_micro(case.name, view)

@@ -359,6 +359,9 @@ def test_r0_r1_tiny_kept_records_replace_lost_run_files(tiny_r0r1, tmp_path, mon
               micro_kw={"voxels_per_diameter": 3.0}, progress=False)
     full = compare(out, **kw)
     assert (out / "runs" / "R1.record.h5").exists()  # written for a run that existed
+    stamp = (out / "runs" / "R1.record.h5").stat().st_mtime_ns
+    compare(out, **kw)  # a rerun beside the run files leaves the kept records as they are
+    assert (out / "runs" / "R1.record.h5").stat().st_mtime_ns == stamp
     fresh = tmp_path / "fresh"
     (fresh / "runs").mkdir(parents=True)
     for f in (out / "runs").glob("R[01].*"):
