@@ -42,24 +42,42 @@ step "evaluate: test split, held-out seed means, replicates, baseline, 5x2 CV"
     --out-dir "$OUT/ensemble-gp_eval" --folds 0 --no-baseline --quiet \
     | tee "$OUT/evaluate-ensemble-gp.txt"
 
-step "learning curves on the held-out seed means (network and GP pressure heads)"
-surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve" --repeats 3 --quiet \
-    | tee "$OUT/learning-curve.txt"
-surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve_gp" --repeats 3 \
-    --pressure-head gp --mse-weight 30 --dropout 0.1 --quiet | tee "$OUT/learning-curve-gp.txt"
+# held-out groups of >= 2 seeds (seed means) exist in the rve set, not in a small test set
+HELD_GROUPS=$(python - "$DATA" <<'PY'
+import sys
+from calendaring import read_dataset, seed_means
+print(len(seed_means(read_dataset(sys.argv[1]), "holdout")))
+PY
+)
+if [ "$HELD_GROUPS" -gt 0 ]; then
+    step "learning curves on $HELD_GROUPS held-out seed means (network and GP heads)"
+    surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve" --repeats 3 --quiet \
+        | tee "$OUT/learning-curve.txt"
+    surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve_gp" --repeats 3 \
+        --pressure-head gp --mse-weight 30 --dropout 0.1 --quiet \
+        | tee "$OUT/learning-curve-gp.txt"
+else
+    step "no learning curves: $DATA has no held-out groups of >= 2 seeds"
+fi
 
-# the model the calibration steps use: the ensemble closer to the held-out seed means
-read -r BEST OTHER < <(python - "$OUT" <<'PY'
+# the model the calibration steps use: the ensemble closer to the held-out seed means (the
+# single held-out runs, or the test split, where the dataset has no seed means)
+read -r BEST OTHER BY < <(python - "$OUT" <<'PY'
 import json, sys
 from pathlib import Path
 out = Path(sys.argv[1])
-mse = {k: json.loads((out / f"{k}_eval" / "metrics.json").read_text())["holdout_means"]
-       ["pressure_mse_normalised"] for k in ("ensemble", "ensemble-gp")}
-best = min(mse, key=mse.get)
-print(best, "ensemble-gp" if best == "ensemble" else "ensemble")
+m = {k: json.loads((out / f"{k}_eval" / "metrics.json").read_text())
+     for k in ("ensemble", "ensemble-gp")}
+def mse(k):
+    if m[k].get("holdout_means"):
+        return "held-out-seed-means", m[k]["holdout_means"]["pressure_mse_normalised"]
+    split = "holdout" if "holdout" in m[k]["metrics"] else "test"
+    return f"{split}-runs", m[k]["metrics"][split]["pressure"]["pressure_mse_normalised"]
+best = min(m, key=lambda k: mse(k)[1])
+print(best, "ensemble-gp" if best == "ensemble" else "ensemble", mse(best)[0])
 PY
 )
-step "calibration model: $BEST (closer to the held-out seed means than $OTHER)"
+step "calibration model: $BEST (closer to the $BY than $OTHER)"
 
 # the surrogate's own error in the likelihood: the model's test RMSE (normalised units;
 # single runs, so it holds the run-to-run scatter a measured curve has too)
