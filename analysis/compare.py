@@ -292,37 +292,28 @@ def run_view(rec) -> dict:
             "config_hash": rec.info.get("config_hash"), "created": rec.created}
 
 
-def write_case_record(path: Path, rec, key: dict) -> Path:
-    """Keep :func:`run_view` of a finished run in a small HDF5 file (atomic: written under a
-    temporary name, then renamed). Every dataset carries its unit."""
+def write_case_record(path: Path, view: dict, key: dict) -> Path:
+    """Keep a :func:`run_view` of a finished run in a small HDF5 file, atomically
+    (:func:`calendaring.write_h5`). Every dataset carries its unit."""
     import json
 
-    import h5py
+    from calendaring import json_safe, write_h5
 
-    from calendaring import json_safe
-
-    view = run_view(rec)
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["kind"] = "analysis.compare case record"
-            f.attrs["key"] = json.dumps(key, sort_keys=True)
-            meta = {k: view[k] for k in ("path", "summary", "packing_sha256", "targets",
-                                         "config_hash", "created")}
-            f.attrs["view"] = json.dumps(json_safe(meta))
-            for name, unit in (("step", "1"), ("depth", "m"), ("value", "Pa")):
-                d = f.create_dataset(f"pressure/{name}", data=view["pressure"][name],
-                                     compression="gzip", shuffle=True)
-                d.attrs["unit"] = unit
-            d = f.create_dataset("am_diameter", data=view["am_diameters"],
+    def fill(f):
+        f.attrs["kind"] = "analysis.compare case record"
+        f.attrs["key"] = json.dumps(key, sort_keys=True)
+        meta = {k: view[k] for k in ("path", "summary", "packing_sha256", "targets",
+                                     "config_hash", "created")}
+        f.attrs["view"] = json.dumps(json_safe(meta))
+        for name, unit in (("step", "1"), ("depth", "m"), ("value", "Pa")):
+            d = f.create_dataset(f"pressure/{name}", data=view["pressure"][name],
                                  compression="gzip", shuffle=True)
-            d.attrs["unit"] = "m"
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+            d.attrs["unit"] = unit
+        d = f.create_dataset("am_diameter", data=view["am_diameters"], compression="gzip",
+                             shuffle=True)
+        d.attrs["unit"] = "m"
+
+    return write_h5(path, fill)
 
 
 def read_case_record(path: Path, key: dict) -> dict | None:
@@ -597,10 +588,12 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
     def go(case):
         out = runs_dir / f"{case.name}.h5"
         key = case_key(case, preset, seed, extra_sets)
-        view = st = None
+        view = st = val = None
         if not (out.exists() and _readable(out)):
             kept = read_case_record(runs_dir / f"{case.name}.record.h5", key)
-            if kept is not None and (not micro or cached_micro(case.name, kept) is not None):
+            if kept is not None and micro:
+                val = cached_micro(case.name, kept)
+            if kept is not None and (not micro or val is not None):
                 view, st = kept, {"name": case.name, "status": "kept",
                                   "file": str(runs_dir / f"{case.name}.record.h5")}
         if st is None:
@@ -613,14 +606,14 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
         if st["status"] == "failed":
             return st, None, None
         if view is None:
-            rec = read_run(st["file"])
-            view = run_view(rec)
+            view = run_view(read_run(st["file"]))
             have = read_case_record(runs_dir / f"{case.name}.record.h5", key)
             if have is None or have["created"] != view["created"]:  # kept files stay put
-                write_case_record(runs_dir / f"{case.name}.record.h5", rec, key)
+                write_case_record(runs_dir / f"{case.name}.record.h5", view, key)
         if not micro:
             return st, view, None
-        val = cached_micro(case.name, view)
+        if val is None:
+            val = cached_micro(case.name, view)
         if val is None:
             mkey = micro_key(case.name, view)
             if progress:

@@ -1,4 +1,4 @@
-"""Atomic text, JSON and figure writers shared by every package (host only).
+"""Atomic text, JSON, HDF5 and figure writers shared by every package (host only).
 
 Every file is written under a temporary name in its destination folder, then renamed, so a
 crash never leaves a half-written file under the real name. JSON goes through
@@ -55,6 +55,47 @@ def write_text(path: str | Path, text: str) -> Path:
     return path
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def write_h5(path: str | Path, fill, previous: Path | None = None) -> Path:
+    """Write an HDF5 file atomically: ``fill(f)`` writes it under a temporary name, which
+    is flushed to disk and renamed to ``path``; with ``previous``, the file ``path`` held is
+    first renamed to ``previous`` (so a kill at any moment leaves at least one complete
+    file). Temporaries left by killed writers are removed."""
+    import h5py
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a killed writer
+        pid = stale.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            stale.unlink(missing_ok=True)
+    tmp = _tmp(path)
+    try:
+        with h5py.File(tmp, "w") as f:
+            fill(f)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        if previous is not None and path.exists():
+            os.replace(path, previous)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
 def write_json(path: str | Path, obj: Any, indent: int = 1) -> Path:
     """Write ``json_safe(obj)`` as indented strict JSON, atomically."""
     return write_text(path, json.dumps(json_safe(obj), indent=indent, allow_nan=False) + "\n")
@@ -78,4 +119,4 @@ def save_figure(fig, path: str | Path, dpi: int = 150, **kwargs) -> Path:
     return path
 
 
-__all__ = ["json_safe", "save_figure", "write_json", "write_text"]
+__all__ = ["json_safe", "save_figure", "write_h5", "write_json", "write_text"]

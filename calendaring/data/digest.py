@@ -31,8 +31,9 @@ import h5py
 import numpy as np
 
 from calendaring.core.config import SimConfig, config_text_hash, load_config_dict
+from calendaring.core.fileio import write_h5
 from calendaring.data.curves import resample_pressure
-from calendaring.process.runfile import RunFileError, RunRecord, _atomic_h5, incomplete_stroke
+from calendaring.process.runfile import RunFileError, RunRecord, incomplete_stroke
 
 DIGEST_FORMAT = "calendaring-run-digest"
 DIGEST_SCHEMA = 1
@@ -113,7 +114,7 @@ def write_digest(path: str | Path, rec: RunRecord) -> Path:
                                   compression_opts=6, shuffle=True)
             ds.attrs["unit"] = unit
 
-    return _atomic_h5(Path(path), fill)
+    return write_h5(Path(path), fill)
 
 
 def read_digest(path: str | Path) -> Digest:

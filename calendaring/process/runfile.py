@@ -75,7 +75,6 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -91,6 +90,7 @@ from calendaring.core.config import (
     config_text_hash,
     load_config_dict,
 )
+from calendaring.core.fileio import write_h5
 
 FORMAT = "calendaring-run"
 CHECKPOINT_FORMAT = "calendaring-checkpoint"
@@ -182,34 +182,6 @@ class RunState:
 
 # ---------------------------------------------------------------------- writing
 
-def _atomic_h5(path: Path, fill, previous: Path | None = None) -> Path:
-    """Write an HDF5 file under a temporary name, flush it to disk, then rename it to
-    ``path``; with ``previous``, the file ``path`` held is first renamed to ``previous`` (so
-    a kill at any moment leaves at least one complete file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a killed writer
-        pid = stale.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
-            stale.unlink(missing_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w") as f:
-            fill(f)
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        if previous is not None and path.exists():
-            os.replace(path, previous)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
-
-
 def _dataset(g: h5py.Group, name: str, data, unit: str, description: str) -> None:
     arr = np.asarray(data)
     kwargs = {"compression": "gzip", "compression_opts": 4} if arr.size > 4096 else {}
@@ -282,7 +254,7 @@ def write_run(path: str | Path, data: dict) -> Path:
                 for name, (unit, desc) in BONDS.items():
                     _dataset(b, name, snap["bonds"][name], unit, desc)
 
-    return _atomic_h5(Path(path), fill)
+    return write_h5(Path(path), fill)
 
 
 # ---------------------------------------------------------------------- reading
@@ -528,21 +500,11 @@ def write_checkpoint(path: str | Path, ck: dict) -> Path:
 
     path = Path(path)
     try:
-        return _atomic_h5(path, fill, previous=previous_checkpoint(path))
+        return write_h5(path, fill, previous=previous_checkpoint(path))
     except OSError as err:
         raise OSError(err.errno, f"{err.strerror or err} while writing the checkpoint; the "
                       "checkpoints written before are intact: free space and rerun with "
                       "--resume", str(path)) from err
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def read_checkpoint(path: str | Path) -> dict:
