@@ -55,7 +55,6 @@ import contextlib
 import datetime
 import hashlib
 import json
-import os
 import sys
 import time
 from collections.abc import Iterable
@@ -67,6 +66,7 @@ import numpy as np
 
 from calendaring._version import __version__
 from calendaring.core.errors import ConfigError
+from calendaring.core.fileio import write_h5
 from calendaring.data.curves import resample_pressure, smooth
 from calendaring.data.params import PAPER_SPACE, ParameterSpace
 
@@ -421,60 +421,55 @@ def _put(g, name, data, unit, description, **attrs):
 
 
 def write_dataset(path: str | Path, ds: Dataset) -> Path:
-    """Write ``ds`` atomically (temporary name, then rename)."""
+    """Write ``ds`` atomically (:func:`calendaring.core.fileio.write_h5`: temporary name,
+    flushed to disk, then renamed)."""
     path = Path(path)
     if path.suffix.lower() not in (".h5", ".hdf5"):
         raise ConfigError("--out", str(path), "a path ending in .h5 or .hdf5")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w") as f:
-            a = f.attrs
-            a["format"] = FORMAT
-            a["schema_version"] = SCHEMA_VERSION
-            a["software_version"] = __version__
-            a["created"] = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
-            a["parameter_space"] = json.dumps(ds.space.to_json())
-            a["stroke"] = ds.stroke
-            a["savgol_window"] = ds.savgol_window
-            a["savgol_order"] = ds.savgol_order
-            a["load_scale"] = ds.load_scale
-            a["base_config"] = ds.base_config
-            a["fingerprint"] = ds.fingerprint
-            a["skipped"] = json.dumps(ds.skipped)
-            a["provenance"] = json.dumps(ds.provenance, default=str)
-            a["noise_floor"] = json.dumps(noise_floor(ds))
-            g = f.create_group("parameters")
-            _put(g, "physical", ds.params, "mixed", "the eight breakage parameters",
-                 units=json.dumps(ds.space.units), names=json.dumps(ds.space.names))
-            _put(g, "unit", ds.unit_params, "1", "parameters scaled to [0, 1] by the bounds")
-            g = f.create_group("pressure")
-            _put(g, "depth", ds.depth, "m", "depth of each point (interval midpoints)")
-            _put(g, "raw", ds.pressure_raw, "Pa", "interval means of the top-plate pressure")
-            _put(g, "smoothed", ds.pressure, "Pa", "Savitzky-Golay smoothed pressure")
-            _put(g, "normalised", ds.pressure_normalised, "1",
-                 "(cbrt(smoothed) - cbrt_min) / (cbrt_max - cbrt_min)",
-                 cbrt_min=ds.cbrt_min, cbrt_max=ds.cbrt_max)
-            g = f.create_group("distribution")
-            _put(g, "histogram", ds.histogram, "1",
-                 "breakage probability per [peak-load bin, parent-diameter bin]")
-            _put(g, "load_edges", ds.load_edges, "N", "peak-load bin edges")
-            _put(g, "diameter_edges", ds.diameter_edges, "m", "parent-diameter bin edges")
-            _put(g, "n_events", ds.n_events, "1", "breakage events binned")
-            g = f.create_group("runs")
-            _put(g, "run_id", ds.run_id, "-", "sweep run id")
-            _put(g, "role", ds.role, "-", "train | replicate | holdout | refine")
-            _put(g, "file", ds.files, "-", "run file name")
-            _put(g, "design_index", ds.design_index, "1", "row of the design")
-            _put(g, "seed", ds.seed, "1", "random seed of the run")
-            _put(g, "group", ds.group, "1", "replicate group (-1: none)")
-            _put(g, "wall_time", ds.wall_time, "s", "wall time of the run")
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
 
+    def fill(f):
+        a = f.attrs
+        a["format"] = FORMAT
+        a["schema_version"] = SCHEMA_VERSION
+        a["software_version"] = __version__
+        a["created"] = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+        a["parameter_space"] = json.dumps(ds.space.to_json())
+        a["stroke"] = ds.stroke
+        a["savgol_window"] = ds.savgol_window
+        a["savgol_order"] = ds.savgol_order
+        a["load_scale"] = ds.load_scale
+        a["base_config"] = ds.base_config
+        a["fingerprint"] = ds.fingerprint
+        a["skipped"] = json.dumps(ds.skipped)
+        a["provenance"] = json.dumps(ds.provenance, default=str)
+        a["noise_floor"] = json.dumps(noise_floor(ds))
+        g = f.create_group("parameters")
+        _put(g, "physical", ds.params, "mixed", "the eight breakage parameters",
+             units=json.dumps(ds.space.units), names=json.dumps(ds.space.names))
+        _put(g, "unit", ds.unit_params, "1", "parameters scaled to [0, 1] by the bounds")
+        g = f.create_group("pressure")
+        _put(g, "depth", ds.depth, "m", "depth of each point (interval midpoints)")
+        _put(g, "raw", ds.pressure_raw, "Pa", "interval means of the top-plate pressure")
+        _put(g, "smoothed", ds.pressure, "Pa", "Savitzky-Golay smoothed pressure")
+        _put(g, "normalised", ds.pressure_normalised, "1",
+             "(cbrt(smoothed) - cbrt_min) / (cbrt_max - cbrt_min)",
+             cbrt_min=ds.cbrt_min, cbrt_max=ds.cbrt_max)
+        g = f.create_group("distribution")
+        _put(g, "histogram", ds.histogram, "1",
+             "breakage probability per [peak-load bin, parent-diameter bin]")
+        _put(g, "load_edges", ds.load_edges, "N", "peak-load bin edges")
+        _put(g, "diameter_edges", ds.diameter_edges, "m", "parent-diameter bin edges")
+        _put(g, "n_events", ds.n_events, "1", "breakage events binned")
+        g = f.create_group("runs")
+        _put(g, "run_id", ds.run_id, "-", "sweep run id")
+        _put(g, "role", ds.role, "-", "train | replicate | holdout | refine")
+        _put(g, "file", ds.files, "-", "run file name")
+        _put(g, "design_index", ds.design_index, "1", "row of the design")
+        _put(g, "seed", ds.seed, "1", "random seed of the run")
+        _put(g, "group", ds.group, "1", "replicate group (-1: none)")
+        _put(g, "wall_time", ds.wall_time, "s", "wall time of the run")
+
+    return write_h5(path, fill)
 
 _EXPECTED = {"parameters/physical": "mixed", "parameters/unit": "1", "pressure/depth": "m",
              "pressure/raw": "Pa", "pressure/smoothed": "Pa", "pressure/normalised": "1",
