@@ -115,7 +115,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="skip the per-row loss profiles (and the coverage goal over the "
                         "identifiable parameters)")
     a.add_argument("--seed", type=int, default=0)
-    a.add_argument("--threads", type=integer(1), default=1, help="torch CPU threads")
+    a.add_argument("--threads", type=integer(1), default=1,
+                   help="torch CPU threads (per job)")
+    a.add_argument("--jobs", type=integer(1), default=1,
+                   help="rows calibrated at once in worker processes (the report does not "
+                        "depend on it; e.g. the number of cores with --threads 1)")
     a.add_argument("--quiet", action="store_true")
     f = sub.add_parser("refine", help="spend new DEM runs near the posterior: select, "
                                       "run, retrain, recalibrate (resumable)")
@@ -341,7 +345,7 @@ def cmd_validate(args) -> int:
     rep = validate_to_dir(model, ds, args.out, rows=args.rows, **_settings(args),
                           use_distribution=not args.no_distribution, fix=fix or None,
                           identifiability=not args.no_identifiability,
-                          progress=not args.quiet)
+                          progress=not args.quiet, jobs=args.jobs)
     ident = "identifiable" in rep
     print(f"{'parameter':<18s}{'MAE (unit)':>11s}{'coverage 90 %':>15s}{'CI width':>10s}"
           + (f"{'identifiable':>14s}" if ident else ""))

@@ -83,10 +83,76 @@ def select_rows(ds, rows=None, roles=("holdout",)) -> np.ndarray:
     return idx
 
 
+def validate_row(model, ds, i: int, optimiser: OptimiserConfig, posterior: PosteriorConfig,
+                 use_distribution: bool = True, fix=None, identifiability: bool = True) -> dict:
+    """Calibrate dataset row ``i`` and compare with its truth: the record :func:`validate`
+    keeps per row (a function of the row and the settings only, so rows can be spread over
+    processes)."""
+    space = model.space
+    target = row_target(model, ds, int(i), use_distribution)
+    oc = calibrate_target(model, target, optimiser=optimiser, posterior=posterior,
+                          identifiability=identifiability, fix=fix)
+    truth = np.asarray(ds.params[i], float)
+    tu = space.to_unit(truth)
+    rec = {"row": int(i), "run_id": str(ds.run_id[i]), "fit": oc.result["fit"],
+           "loss": oc.result["loss"]["total"], "parameters": {}}
+    if identifiability:
+        rec["flat"] = list(oc.result["identifiability"]["profiles"]["flat"])
+    fixed = set(fix or {})
+    for j, p in enumerate(oc.result["parameters"]):
+        name = p["name"]
+        if name in fixed:
+            continue
+        s = oc.posterior.summary[name]
+        rec["parameters"][name] = {
+            "truth": float(truth[j]), "truth_unit": float(tu[j]),
+            "optimum": p["value"], "optimum_unit": p["value_unit"],
+            "posterior_mean": s["mean"], "posterior_mean_unit": s["mean_unit"],
+            "ci90": s["ci90"], "ci90_unit": s["ci90_unit"],
+            "inside_ci90": bool(s["ci90_unit"][0] <= tu[j] <= s["ci90_unit"][1])}
+    return rec
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(model, ds, threads: int) -> None:
+    import torch
+
+    torch.set_num_threads(threads)
+    _WORKER.update(model=model, ds=ds)
+
+
+def _worker_row(i: int, kw: dict) -> dict:
+    return validate_row(_WORKER["model"], _WORKER["ds"], i, **kw)
+
+
+def _rows_in_parallel(model, ds, pending: list[int], kw: dict, jobs: int):
+    """Yield the records of ``pending`` rows as worker processes finish them (spawned, each
+    with the model and the dataset and the parent's torch thread count)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    import torch
+
+    with ProcessPoolExecutor(max_workers=min(jobs, len(pending)),
+                             mp_context=multiprocessing.get_context("spawn"),
+                             initializer=_worker_init,
+                             initargs=(model, ds, torch.get_num_threads())) as pool:
+        futures = [pool.submit(_worker_row, int(i), kw) for i in pending]
+        try:
+            for f in as_completed(futures):
+                yield f.result()
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
 def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfig | None = None,
              posterior: PosteriorConfig | None = None, use_distribution: bool = True,
              fix=None, identifiability: bool = True, progress: bool = True,
-             done: dict[int, dict] | None = None, on_row=None) -> dict:
+             done: dict[int, dict] | None = None, on_row=None, jobs: int = 1) -> dict:
     """Calibrate each selected row and score recovery and interval coverage.
 
     Returns a JSON-ready dict: ``rows`` (per row: truth, optimum, posterior mean and 90 %
@@ -97,51 +163,39 @@ def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfi
 
     ``done``: records of rows already calibrated with the same settings (reused, not rerun);
     ``on_row(record)`` is called after each new row (:func:`validate_to_dir` checkpoints).
+    ``jobs`` > 1 calibrates that many rows at once in worker processes; each record depends
+    on its row and the settings only, so the report is the same for any ``jobs``.
     """
     space = model.space
     if list(ds.space.names) != list(space.names):
         raise ConfigError("dataset parameters", ds.space.names, f"the model's {space.names}")
+    if not (isinstance(jobs, int) and jobs >= 1):
+        raise ConfigError("--jobs", jobs, "an integer >= 1")
     optimiser = optimiser or OptimiserConfig()
     posterior = posterior or PosteriorConfig()
     idx = select_rows(ds, rows, roles)
-    out_rows = []
     t0 = time.perf_counter()
     fixed = set(fix or {})
-    done = done or {}
-    for n, i in enumerate(idx):
-        if int(i) in done:
-            out_rows.append(done[int(i)])
-            continue
-        target = row_target(model, ds, int(i), use_distribution)
-        oc = calibrate_target(model, target, optimiser=optimiser, posterior=posterior,
-                              identifiability=identifiability, fix=fix)
-        truth = np.asarray(ds.params[i], float)
-        tu = space.to_unit(truth)
-        rec = {"row": int(i), "run_id": str(ds.run_id[i]), "fit": oc.result["fit"],
-               "loss": oc.result["loss"]["total"], "parameters": {}}
-        if identifiability:
-            rec["flat"] = list(oc.result["identifiability"]["profiles"]["flat"])
-        for j, p in enumerate(oc.result["parameters"]):
-            name = p["name"]
-            if name in fixed:
-                continue
-            s = oc.posterior.summary[name]
-            rec["parameters"][name] = {
-                "truth": float(truth[j]), "truth_unit": float(tu[j]),
-                "optimum": p["value"], "optimum_unit": p["value_unit"],
-                "posterior_mean": s["mean"], "posterior_mean_unit": s["mean_unit"],
-                "ci90": s["ci90"], "ci90_unit": s["ci90_unit"],
-                "inside_ci90": bool(s["ci90_unit"][0] <= tu[j] <= s["ci90_unit"][1])}
-        out_rows.append(rec)
+    done = dict(done or {})
+    kw = {"optimiser": optimiser, "posterior": posterior, "use_distribution": use_distribution,
+          "fix": fix, "identifiability": identifiability}
+    pending = [int(i) for i in idx if int(i) not in done]
+    if jobs > 1 and len(pending) > 1:
+        records = _rows_in_parallel(model, ds, pending, kw, jobs)
+    else:
+        records = (validate_row(model, ds, i, **kw) for i in pending)
+    for n, rec in enumerate(records):
+        done[rec["row"]] = rec
         if on_row is not None:
             on_row(rec)
         if progress:
             el = time.perf_counter() - t0
-            eta = el / (n + 1) * (len(idx) - n - 1)
+            eta = el / (n + 1) * (len(pending) - n - 1)
             inside = sum(v["inside_ci90"] for v in rec["parameters"].values())
-            print(f"validate: row {i} ({n + 1}/{len(idx)}), {inside}/{len(rec['parameters'])}"
-                  f" truths inside 90 % CI, elapsed {el:.0f} s, ETA {eta:.0f} s",
-                  file=sys.stderr, flush=True)
+            print(f"validate: row {rec['row']} ({n + 1}/{len(pending)} to calibrate), "
+                  f"{inside}/{len(rec['parameters'])} truths inside 90 % CI, elapsed {el:.0f} s,"
+                  f" ETA {eta:.0f} s", file=sys.stderr, flush=True)
+    out_rows = [done[int(i)] for i in idx]
     per = {}
     for name in space.names:
         if name in fixed:
@@ -225,7 +279,7 @@ def _request(model, ds, kw: dict) -> dict:
     """What makes a row's record reusable: the model file, the dataset and the settings."""
     path = model.info.get("path") if hasattr(model, "info") else None
     settings = {k: (v.to_json() if hasattr(v, "to_json") else v) for k, v in kw.items()
-                if k not in ("progress", "rows", "roles")}
+                if k not in ("progress", "rows", "roles", "jobs")}
     req = {"model_sha256": file_sha256(path) if path and Path(path).is_file() else None,
            "dataset_fingerprint": ds.fingerprint, "settings": settings}
     return json.loads(json.dumps(req, default=str))
@@ -265,4 +319,4 @@ def validate_to_dir(model, ds, out_dir, **kw) -> dict:
 
 __all__ = ["CONSTRAINED_WIDTH", "COVERAGE_GOAL", "KEY_PARAMETERS", "PRIOR_CI90_WIDTH",
            "identifiable_fractions", "plot_validation", "row_target", "select_rows",
-           "trained_on", "validate", "validate_to_dir"]
+           "trained_on", "validate", "validate_row", "validate_to_dir"]

@@ -9,12 +9,14 @@
 # and the given-data estimate; one calibration of a held-out seed verified by the DEM.
 # Each step is skipped when its output exists (rerun to resume; delete an output to redo
 # it). Models and reports go to OUT (default models/rve, git-ignored).
-#   bash scripts/rve-models.sh [DATASET] [OUT] [PRESET]
+#   [JOBS=N] bash scripts/rve-models.sh [DATASET] [OUT] [PRESET]
+# JOBS: held-out rows `inverse validate` calibrates at once (default: the number of cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-data/rve.h5}
 OUT=${2:-models/rve}
 PRESET=${3:-rve}
+JOBS=${JOBS:-$(nproc)}  # inverse validate: rows calibrated at once
 . .venv/bin/activate
 mkdir -p "$OUT"
 t0=$SECONDS
@@ -93,11 +95,12 @@ ERR=$(model_error "$BEST")
 ERR_OTHER=$(model_error "$OTHER")
 step "validate every held-out seed: $BEST (model error sigma $ERR, normalised)"
 [ -f "$OUT/validate/validation.json" ] || inverse validate --model "$OUT/$BEST.pt" \
-    --dataset "$DATA" --out "$OUT/validate" --model-error "$ERR" --quiet \
+    --dataset "$DATA" --out "$OUT/validate" --model-error "$ERR" --jobs "$JOBS" --quiet \
     | tee "$OUT/validate.txt"
 step "validate every held-out seed: $OTHER (model error sigma $ERR_OTHER), for comparison"
 [ -f "$OUT/validate-$OTHER/validation.json" ] || inverse validate --model "$OUT/$OTHER.pt" \
-    --dataset "$DATA" --out "$OUT/validate-$OTHER" --model-error "$ERR_OTHER" --quiet \
+    --dataset "$DATA" --out "$OUT/validate-$OTHER" --model-error "$ERR_OTHER" --jobs "$JOBS" \
+    --quiet \
     | tee "$OUT/validate-$OTHER.txt"
 
 step "Sobol indices (N = 2^15) against Fig. 10, the 30 um study and the raw runs"

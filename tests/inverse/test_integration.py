@@ -137,6 +137,44 @@ def test_validate_resumes_from_its_partial_file(model_file, truth, tmp_path, mon
     assert len(counted) == 1 and rep2["resumed_rows"] == 0 and "identifiable" not in rep2
 
 
+def test_validate_in_worker_processes_gives_the_same_report(model_file, truth, tmp_path):
+    """--jobs spreads the rows over spawned processes: every record, and so the report, is
+    the one the serial run gives (each row depends on its settings only), the checkpoint
+    holds every row, and a resumed parallel run calibrates only what is missing."""
+    import json
+
+    import inverse.validate as v
+    from calendaring.data.dataset import read_dataset
+
+    m = surrogate.load(model_file)
+    ds = read_dataset(write_dataset(tmp_path / "holdout.h5", truth))
+    kw = {"optimiser": OptimiserConfig(iterations=30, restarts=2),
+          "posterior": PosteriorConfig(walkers=18, steps=40, burn=10),
+          "identifiability": False, "progress": False}
+    serial = validate_to_dir(m, ds, tmp_path / "serial", rows=[0, 3], **kw)
+    seen = []
+    par = v.validate(m, ds, rows=[0, 3], jobs=2, on_row=lambda r: seen.append(r["row"]),
+                     **kw)
+    assert sorted(seen) == [0, 3]
+    assert [r["row"] for r in par["rows"]] == [0, 3]
+    assert json.dumps(par["rows"], sort_keys=True) == json.dumps(serial["rows"], sort_keys=True)
+    assert par["per_parameter"] == serial["per_parameter"]
+    # a checkpoint with row 0: the parallel rerun calibrates row 3 only, in the parent
+    # (one row left), and the jobs setting does not change the request key
+    out = tmp_path / "resumed"
+    out.mkdir()
+    request = v._request(m, ds, kw | {"jobs": 2})
+    assert request == v._request(m, ds, kw)
+    keep = [r for r in serial["rows"] if r["row"] == 0]
+    (out / v.PARTIAL).write_text(json.dumps({"request": request, "rows": keep}))
+    rep = validate_to_dir(m, ds, out, rows=[0, 3], jobs=2, **kw)
+    assert rep["resumed_rows"] == 1
+    assert json.dumps(rep["rows"], sort_keys=True) == json.dumps(serial["rows"],
+                                                                 sort_keys=True)
+    with pytest.raises(Exception, match="--jobs"):
+        v.validate(m, ds, rows=[0], jobs=0, **kw)
+
+
 def test_validate_cli_prints_coverage_and_identifiability(model_file, truth, tmp_path, capsys):
     ds_path = write_dataset(tmp_path / "holdout.h5", truth)
     rc = cli.main(["validate", "--model", str(model_file), "--dataset", str(ds_path), "--out",
