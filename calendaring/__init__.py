@@ -34,8 +34,8 @@ def _export(module: str, *names: str) -> None:
 
 _export("calendaring.core.errors", "ConfigError", "SimulationError")
 _export("calendaring.core.units", "to_mpa", "to_um")
-_export("calendaring.core.fileio", "json_safe", "save_figure", "write_h5", "write_json",
-        "write_text")
+_export("calendaring.core.fileio", "atomic_path", "json_safe", "save_figure", "write_h5",
+        "write_json", "write_text")
 _export("calendaring.core.config", "SimConfig", "format_override", "load_config",
         "load_config_dict", "load_preset", "pair_key", "parse_override", "with_overrides",
         "config_hash", "config_json", "PRESETS")

@@ -363,18 +363,17 @@ def target_from_csv(path: str | Path, model) -> Target:
 def write_curve_csv(path: str | Path, depth, pressure, sigma=None) -> Path:
     """Write a curve in the SI spelling of the convention (``depth_m,pressure_Pa[,sigma_Pa]``),
     atomically."""
-    import os
+    from calendaring import atomic_path
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     cols = [np.asarray(depth, float), np.asarray(pressure, float)]
     head = "depth_m,pressure_Pa"
     if sigma is not None:
         cols.append(np.asarray(sigma, float))
         head += ",sigma_Pa"
-    np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=head, comments="",
-               fmt="%.10g")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savetxt(tmp, np.column_stack(cols), delimiter=",", header=head, comments="",
+                   fmt="%.10g")
     return path
 
 

@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import datetime
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from calendaring import __version__
+from calendaring import __version__, atomic_path
 
 FORMAT = "calendaring-surrogate"
 CHECKPOINT_VERSION = 1
@@ -78,13 +77,8 @@ def write_checkpoint(path: str | Path, obj: dict) -> Path:
     obj.setdefault("software_version", software_version())
     obj.setdefault("created", datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"))
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with atomic_path(path) as tmp:
         torch.save(obj, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 

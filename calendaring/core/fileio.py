@@ -11,6 +11,7 @@ manifest, rewritten atomically after every task).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -41,17 +42,44 @@ def _tmp(path: Path) -> Path:
     return path.with_name(f".{path.name}.tmp-{os.getpid()}")
 
 
-def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _tmp(path)
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
     try:
-        tmp.write_text(text)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, fsync: bool = False, previous: Path | None = None,
+                keep_suffix: bool = False):
+    """Yield a temporary path next to ``path`` for the caller to write; when the block ends
+    without an error it is (with ``fsync``, flushed to disk and) renamed to ``path``,
+    otherwise removed. With ``previous``, the file ``path`` held is first renamed to
+    ``previous``. The temporary is ``.NAME.tmp-PID`` (what sweeps and keep scripts skip
+    and clean up), or ``.STEM.tmp-PID.SUFFIX`` with ``keep_suffix``, for writers that pick
+    the format from the suffix (matplotlib)."""
+    path = Path(path)
+    tmp = (path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}") if keep_suffix
+           else _tmp(path))
+    try:
+        yield tmp
+        if fsync:
+            _fsync(tmp)
+        if previous is not None and path.exists():
+            os.replace(path, previous)
         os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` atomically; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
     return path
 
 
@@ -78,21 +106,8 @@ def write_h5(path: str | Path, fill, previous: Path | None = None) -> Path:
         pid = stale.name.rsplit("-", 1)[-1]
         if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
             stale.unlink(missing_ok=True)
-    tmp = _tmp(path)
-    try:
-        with h5py.File(tmp, "w") as f:
-            fill(f)
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        if previous is not None and path.exists():
-            os.replace(path, previous)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_path(path, fsync=True, previous=previous) as tmp, h5py.File(tmp, "w") as f:
+        fill(f)
     return path
 
 
@@ -107,16 +122,13 @@ def save_figure(fig, path: str | Path, dpi: int = 150, **kwargs) -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
     try:
-        fig.savefig(tmp, dpi=dpi, **kwargs)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        with atomic_path(path, keep_suffix=True) as tmp:
+            fig.savefig(tmp, dpi=dpi, **kwargs)
     finally:
         plt.close(fig)
     return path
 
 
-__all__ = ["json_safe", "save_figure", "write_h5", "write_json", "write_text"]
+__all__ = ["atomic_path", "json_safe", "save_figure", "write_h5", "write_json",
+           "write_text"]

@@ -471,6 +471,7 @@ def write_dataset(path: str | Path, ds: Dataset) -> Path:
 
     return write_h5(path, fill)
 
+
 _EXPECTED = {"parameters/physical": "mixed", "parameters/unit": "1", "pressure/depth": "m",
              "pressure/raw": "Pa", "pressure/smoothed": "Pa", "pressure/normalised": "1",
              "distribution/histogram": "1", "distribution/load_edges": "N",

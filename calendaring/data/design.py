@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 from pathlib import Path
 
 import numpy as np
 
 from calendaring.core.errors import ConfigError
-from calendaring.core.fileio import save_figure
+from calendaring.core.fileio import atomic_path, save_figure
 from calendaring.data.params import PAPER_SPACE, ParameterSpace
 
 DESIGNS = ("lhs", "sobol", "reference", "centre")
@@ -78,13 +77,11 @@ def read_design_csv(path: Path, space: ParameterSpace = PAPER_SPACE) -> np.ndarr
 def write_design_csv(path: Path, x: np.ndarray, space: ParameterSpace = PAPER_SPACE) -> Path:
     """Physical rows to CSV (header = parameter names), atomically."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w", newline="") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(space.names)
         for row in x:
             w.writerow([repr(float(v)) for v in row])
-    os.replace(tmp, path)
     return path
 
 

@@ -69,6 +69,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calendaring.core.fileio import atomic_path
+
 __all__ = [
     "CSV_COLUMNS",
     "CSV_MARKER",
@@ -257,17 +259,11 @@ def _tmp_name(path: Path, suffix: str = ".tmp") -> Path:
 
 
 def _write_text_atomic(path: Path, lines: Iterable[str]) -> Path:
-    """Write ``lines`` to a hidden temporary file next to ``path``, then rename it."""
-    tmp = _tmp_name(path)
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            f.writelines(lines)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    """Write ``lines`` to a hidden temporary file next to ``path``, flush it to disk, then
+    rename it (:func:`calendaring.core.fileio.atomic_path`)."""
+    with (atomic_path(path, fsync=True) as tmp,
+          open(tmp, "w", encoding="utf-8", newline="\n") as f):
+        f.writelines(lines)
     return path
 
 
