@@ -46,8 +46,8 @@ def fit_errors(model, target: Target, u: np.ndarray) -> tuple[dict, np.ndarray]:
     """Surrogate pressure at ``u`` against the target: RMSE, relative RMSE, max |error| [Pa]
     over the valid points; returns (errors, predicted pressure (m,) [Pa])."""
     with torch.no_grad():
-        p_norm, _, _ = model.torch_forward(torch.as_tensor(np.atleast_2d(u),
-                                                           dtype=torch.float32))
+        p_norm, _, _ = model.torch_forward(
+            torch.as_tensor(np.atleast_2d(u), dtype=torch.float32), distribution=False)
     pred = np.asarray(model.pressure_from_normalised(p_norm.double().numpy()), float)[0]
     v = target.valid
     err = pred[v] - target.pressure[v]

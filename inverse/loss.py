@@ -190,7 +190,8 @@ class CompositeLoss:
     # ------------------------------------------------------------------ evaluation
     def terms(self, u: torch.Tensor) -> dict[str, torch.Tensor]:
         """Each term (unweighted), (n,) tensors, plus the weighted ``total``."""
-        p_norm, dist, _ = self.model.torch_forward(u)  # (n, m), (n, L, D)
+        p_norm, dist, _ = self.model.torch_forward(  # (n, m), (n, L, D) or None
+            u, distribution=self.has_centroid)
         h = torch.nn.functional.huber_loss(p_norm, self.y.expand_as(p_norm), reduction="none",
                                            delta=self.config.huber_delta)
         h = torch.where(self.valid, h, torch.zeros_like(h))

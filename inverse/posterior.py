@@ -170,7 +170,7 @@ class LogPosterior:
         u = torch.as_tensor(self.full(theta[inside]), dtype=torch.float32)
         self.evaluations += 1
         with torch.no_grad():
-            p_norm, dist, var = self.model.torch_forward(u)
+            p_norm, dist, var = self.model.torch_forward(u, distribution=self.use_centroid)
         r = p_norm.double()[:, self.valid_t] - self.y  # (n, k)
         v = self.obs_var.expand_as(r)
         if var is not None and self.cfg.use_model_variance:
@@ -287,7 +287,7 @@ def posterior_predictive(model, target: Target, logp: LogPosterior, flat: np.nda
     idx = rng.choice(len(flat), size=min(cfg.predictive_draws, len(flat)), replace=False)
     u = torch.as_tensor(logp.full(flat[idx]), dtype=torch.float32)
     with torch.no_grad():
-        p_norm, _, var = model.torch_forward(u)
+        p_norm, _, var = model.torch_forward(u, distribution=False)
     y = p_norm.double().numpy()
     noise_var = np.zeros(y.shape[1])
     noise_var[logp.valid] = logp.obs_var.numpy()

@@ -132,21 +132,30 @@ def _rows_in_parallel(model, ds, pending: list[int], kw: dict, jobs: int):
     with the model and the dataset and the parent's torch thread count)."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     import torch
 
-    with ProcessPoolExecutor(max_workers=min(jobs, len(pending)),
-                             mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_worker_init,
-                             initargs=(model, ds, torch.get_num_threads())) as pool:
-        futures = [pool.submit(_worker_row, int(i), kw) for i in pending]
-        try:
-            for f in as_completed(futures):
-                yield f.result()
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
+    try:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(pending)),
+                                 mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_worker_init,
+                                 initargs=(model, ds, torch.get_num_threads())) as pool:
+            futures = [pool.submit(_worker_row, int(i), kw) for i in pending]
+            try:
+                for f in as_completed(futures):
+                    yield f.result()
+            except BaseException:
+                for f in futures:
+                    f.cancel()
+                raise
+    except BrokenProcessPool as err:
+        raise RuntimeError(
+            f"validate: a worker process of --jobs {jobs} died before returning its row. The "
+            "usual causes: validate(..., jobs > 1) called from a script without an "
+            "'if __name__ == \"__main__\":' guard (each spawned worker re-runs the script), "
+            "or a worker killed for memory. Guard the script, or use jobs=1; rows finished "
+            "so far are kept in the checkpoint.") from err
 
 
 def validate(model, ds, rows=None, roles=("holdout",), optimiser: OptimiserConfig | None = None,

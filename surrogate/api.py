@@ -156,12 +156,14 @@ class SurrogateModel:
         return self.normalisation.normalise(p)
 
     # ------------------------------------------------------------------ forward passes
-    def torch_forward(self, u: torch.Tensor
-                      ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    def torch_forward(self, u: torch.Tensor, distribution: bool = True
+                      ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """Differentiable forward pass in eval mode (no dropout).
 
         Args:
             u: ``(n, 8)`` float32 unit parameters in ``[0, 1]``.
+            distribution: False skips the distribution head (``dist`` is then None); the
+                pressure outputs are the same either way.
 
         Returns:
             ``p_norm (n, 196)``, ``dist (n, 30, 30)``, ``p_norm_var (n, 196)`` (ensemble
@@ -170,7 +172,7 @@ class SurrogateModel:
         """
         for m in self.members:
             m.eval()
-        p, d, p_var, _ = ensemble_forward(self.members, u)
+        p, d, p_var, _ = ensemble_forward(self.members, u, distribution)
         if self.pressure_gp is not None:
             p, p_var = self.pressure_gp(u)
         return p, d, p_var

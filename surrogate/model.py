@@ -109,6 +109,11 @@ class DualBranchMLP(nn.Module):
         h = self.features(u)  # (n, 64)
         return self.pressure_head(h), self.dist_head(h)
 
+    def forward_pressure(self, u: torch.Tensor) -> torch.Tensor:
+        """Normalised pressure ``(n, 196)`` alone: the distribution head (most of the
+        multiply-adds) is skipped, for callers that never read the distribution."""
+        return self.pressure_head(self.features(u))
+
     def forward(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         p, logits = self.forward_logits(u)  # (n, 196), (n, 900)
         dist = torch.softmax(logits, dim=-1)  # over all 900 bins

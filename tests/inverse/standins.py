@@ -45,6 +45,7 @@ class LinearSurrogate:
         self.var = var
         self.blob = blob
         self.calls = 0
+        self.distribution_calls = 0  # calls that asked for the distribution
         self.u_min, self.u_max = np.inf, -np.inf
         lc = np.sqrt(self.load_edges[:-1] * self.load_edges[1:])
         self._ll = torch.as_tensor((np.log(lc) - np.log(1e-3)) / np.log(1e3), dtype=torch.float32)
@@ -64,8 +65,9 @@ class LinearSurrogate:
     def p_norm_numpy(self, u) -> np.ndarray:
         return self.b[None, :] + np.atleast_2d(u) @ self.A.T
 
-    def torch_forward(self, u: torch.Tensor):
+    def torch_forward(self, u: torch.Tensor, distribution: bool = True):
         self.calls += 1
+        self.distribution_calls += int(distribution)
         un = u.detach().numpy()
         self.u_min = min(self.u_min, float(un.min()))
         self.u_max = max(self.u_max, float(un.max()))
@@ -73,6 +75,8 @@ class LinearSurrogate:
         b = torch.as_tensor(self.b, dtype=u.dtype)
         p = b + u @ A.T  # (n, 196)
         var = None if self.var is None else torch.full_like(p, self.var)
+        if not distribution:
+            return p, None, var
         if not self.blob:  # a fixed uniform distribution (cheaper; no centroid information)
             return p, torch.full((len(u), 30, 30), 1.0 / 900, dtype=u.dtype), var
         # blob: load centre from u[2] (d0), diameter centre from u[3] (phi)

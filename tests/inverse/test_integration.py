@@ -206,3 +206,21 @@ def test_calibrate_on_a_dataset_row(model_file, truth, tmp_path, capsys):
                        str(tmp_path / "bad.json"), "--quiet", *argv])
         assert rc == 2 and key in capsys.readouterr().err
         assert not (tmp_path / "bad.json").exists()
+
+
+class _DiesWhenUnpickled:
+    """Stands in for the model: unpickling it in a worker ends that process at once, as a
+    worker that re-runs an unguarded script (or is killed for memory) ends."""
+
+    def __reduce__(self):
+        import os
+
+        return os._exit, (3,)
+
+
+def test_a_dead_worker_process_gives_a_clear_error_not_a_hang():
+    import inverse.validate as v
+
+    records = v._rows_in_parallel(_DiesWhenUnpickled(), None, [0, 1], {}, 2)
+    with pytest.raises(RuntimeError, match=r"worker process of --jobs 2 died.*__main__"):
+        next(records)

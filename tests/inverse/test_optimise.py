@@ -127,6 +127,11 @@ def test_loss_weights_sum_to_one():
     t = with_c.evaluate(np.vstack([U_TRUE, U_TRUE + 0.05]))
     assert t["pressure"][0] < 1e-9 and t["centroid"][0] < 1e-9
     assert t["pressure"][1] > 1e-4 and t["centroid"][1] > 1e-4
+    # the distribution is computed only when a centroid term reads it
+    asked = m.distribution_calls
+    t0 = without.evaluate(np.vstack([U_TRUE, U_TRUE + 0.05]))
+    assert m.distribution_calls == asked and "centroid" not in t0
+    np.testing.assert_allclose(t0["pressure"], t["pressure"], rtol=1e-12)
 
 
 def test_fix_holds_values_exactly():

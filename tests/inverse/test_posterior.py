@@ -79,6 +79,7 @@ def test_posterior_matches_the_linear_gaussian_closed_form():
     assert 0.2 < r.diagnostics["acceptance_mean"] < 0.7
     assert r.chain_unit.shape == (2000, 32, 8)
     assert 0.7 < r.predictive["target_coverage_90"] <= 1.0
+    assert m.calls > 0 and m.distribution_calls == 0  # a pressure-only target skips it
 
 
 def test_model_variance_widens_the_posterior():

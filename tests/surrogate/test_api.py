@@ -143,3 +143,19 @@ def test_ensemble_spread_is_nonnegative_and_matches_members(tiny_ds):
     _p, d, var = ens.torch_forward(torch.as_tensor(u, dtype=torch.float32))
     assert var.shape == (4, 196) and torch.all(var >= 0)
     np.testing.assert_allclose(d.sum(dim=(1, 2)).detach().numpy(), 1.0, rtol=1e-5)
+    # the pressure-only pass skips the distribution head and changes nothing else
+    p_only, d_only, var_only = ens.torch_forward(torch.as_tensor(u, dtype=torch.float32),
+                                                 distribution=False)
+    assert d_only is None
+    assert torch.equal(p_only, _p) and torch.equal(var_only, var)
+
+
+def test_pressure_only_forward_matches_and_is_differentiable(model):
+    u = torch.rand((5, 8), generator=torch.Generator().manual_seed(2))
+    p, _d, _var = model.torch_forward(u)
+    ug = u.clone().requires_grad_(True)
+    p_only, d_only, var_only = model.torch_forward(ug, distribution=False)
+    assert d_only is None and var_only is None
+    assert torch.equal(p_only.detach(), p.detach())
+    p_only.sum().backward()
+    assert torch.isfinite(ug.grad).all() and ug.grad.abs().sum() > 0

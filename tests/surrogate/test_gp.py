@@ -124,6 +124,10 @@ def test_hybrid_takes_pressure_from_the_gp_and_distribution_from_the_networks(hy
                                rtol=1e-4, atol=1e-10)
     p.sum().backward()
     assert torch.isfinite(ut.grad).all() and ut.grad.abs().sum() > 0
+    p2, d2, var2 = m.torch_forward(torch.as_tensor(u, dtype=torch.float32), distribution=False)
+    assert d2 is None
+    np.testing.assert_allclose(p2.detach().numpy(), p.detach().numpy(), rtol=0, atol=0)
+    np.testing.assert_allclose(var2.detach().numpy(), var.detach().numpy(), rtol=0, atol=0)
 
 
 def test_hybrid_checkpoint_round_trip(hybrid, tmp_path):
