@@ -17,7 +17,7 @@
 # (one row per event, one row per fragment) through `calendaring.process.runfile.read_run`.
 #
 # **Inputs.** None: the run is made here (`tiny` preset, seed 0). The reference dataset
-# `data/reference.h5` is read only for its global histogram edges (the surrogate's bins).
+# `data/rve.h5` is read only for its global histogram edges (the surrogate's bins).
 # Outputs in `notebooks/_out/30_breakage_statistics/` (or `$CALENDARING_NOTEBOOK_OUT`).
 #
 # **Expected run time.** About 1 minute on 2 CPU cores (35-70 s measured on a 2-core machine
@@ -78,7 +78,7 @@ load_edges, dia_edges = histogram_edges([b["peak_load"]], [b["diameter"]], bins=
 hist = bin_events(b["peak_load"], b["diameter"], load_edges, dia_edges)
 c = centroids(hist, bin_centres(load_edges, "log"), bin_centres(dia_edges), log_load=True)
 
-ds = read_dataset(ROOT / "data" / "reference.h5")
+ds = read_dataset(ROOT / "data" / "rve.h5")
 hist_ref = bin_events(b["peak_load"], b["diameter"], ds.load_edges, ds.diameter_edges)
 c_ref = centroids(hist_ref, ds.load_centres, ds.diameter_centres, log_load=ds.load_scale == "log")
 outside = int(np.sum((b["peak_load"] < ds.load_edges[0]) | (b["peak_load"] > ds.load_edges[-1])

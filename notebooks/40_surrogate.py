@@ -15,9 +15,9 @@
 # histories, the PCA convergence figure (paper Fig. 5), the loss table (Table 3) and errors
 # in MPa on the held-out test split.
 #
-# **Inputs.** `data/reference.h5` (the reference dataset; `calendaring.data.dataset.read_dataset`
-# checks its schema): 300 DEM runs of the `sweep` preset (`data/README.md`); the numbers
-# printed here are whatever that file gives.
+# **Inputs.** `data/rve.h5` (the reference dataset; `calendaring.data.dataset.read_dataset`
+# checks its schema): 279 DEM runs of the `rve` preset, the paper's 100 um cell
+# (`data/README.md`); the numbers printed here are whatever that file gives.
 # Outputs (figures, the model checkpoint) in `notebooks/_out/40_surrogate/` (or
 # `$CALENDARING_NOTEBOOK_OUT`).
 #
@@ -59,7 +59,7 @@ torch.set_num_threads(1)
 # ## The dataset
 
 # %%
-ds = read_dataset(ROOT / "data" / "reference.h5")
+ds = read_dataset(ROOT / "data" / "rve.h5")
 roles = {str(r): int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
 print(f"{ds.path}: {len(ds)} runs {roles}, {ds.pressure.shape[1]} depths over "
       f"{ds.stroke * 1e6:.2f} um, histograms {ds.histogram.shape[1:]}, "

@@ -15,7 +15,7 @@
 # whose true parameters are known and which the surrogate never trained on. Then a short
 # Bayesian posterior (emcee) and its posterior-predictive band over the target.
 #
-# **Inputs.** `data/reference.h5`. The surrogate is trained here (2 members x 25 epochs,
+# **Inputs.** `data/rve.h5`. The surrogate is trained here (2 members x 25 epochs,
 # about 15 s) so that this notebook does not depend on notebook 40. Outputs in
 # `notebooks/_out/50_inverse_calibration/` (or `$CALENDARING_NOTEBOOK_OUT`).
 #
@@ -53,7 +53,7 @@ torch.set_num_threads(1)  # small network, shared machine: one thread is fastest
 # ## A small surrogate (an ensemble of 2, so the posterior sees the model's own spread)
 
 # %%
-ds = read_dataset(ROOT / "data" / "reference.h5")
+ds = read_dataset(ROOT / "data" / "rve.h5")
 t0 = time.perf_counter()
 results = train_ensemble(ds, n_members=2, cfg=TrainConfig(epochs=25, seed=0), progress=False)
 model = SurrogateModel.from_training(results, ds)

@@ -17,7 +17,7 @@
 # `rbd_fast` on the raw DEM runs, no surrogate) shows which first-order effects the data
 # themselves support.
 #
-# **Inputs.** `data/reference.h5`; a single MLP is trained here (30 epochs, about 10 s).
+# **Inputs.** `data/rve.h5`; a single MLP is trained here (30 epochs, about 10 s).
 # Outputs in `notebooks/_out/60_sobol_and_trends/` (or `$CALENDARING_NOTEBOOK_OUT`).
 #
 # **Expected run time.** Under 1 minute on 2 CPU cores (41 s measured on a 2-core machine
@@ -54,7 +54,7 @@ OUT = notebook_output("60_sobol_and_trends")
 torch.set_num_threads(1)  # small network, shared machine: one thread is fastest
 
 # %%
-ds = read_dataset(ROOT / "data" / "reference.h5")
+ds = read_dataset(ROOT / "data" / "rve.h5")
 t0 = time.perf_counter()
 res = train(ds, TrainConfig(epochs=30, seed=0), progress=False)
 model = SurrogateModel.from_training(res, ds)
