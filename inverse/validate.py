@@ -31,7 +31,7 @@ from calendaring import ConfigError
 from inverse.calibrate import calibrate_target
 from inverse.optimise import OptimiserConfig
 from inverse.posterior import PosteriorConfig
-from inverse.report import file_sha256, write_json
+from inverse.report import write_json
 from inverse.targets import Target, attach_distribution, resample_curve
 
 PARTIAL = "validation.partial.json"
@@ -285,12 +285,16 @@ def plot_validation(report: dict, path, space):
 
 
 def _request(model, ds, kw: dict) -> dict:
-    """What makes a row's record reusable: the model file, the dataset and the settings."""
+    """What makes a row's record reusable: the model's weights (a retrained model with the
+    same weights counts as the same, so a checkpoint survives retraining on a fresh
+    machine), the dataset and the settings."""
+    from surrogate.checkpoint import checkpoint_fingerprint
+
     path = model.info.get("path") if hasattr(model, "info") else None
     settings = {k: (v.to_json() if hasattr(v, "to_json") else v) for k, v in kw.items()
                 if k not in ("progress", "rows", "roles", "jobs")}
-    req = {"model_sha256": file_sha256(path) if path and Path(path).is_file() else None,
-           "dataset_fingerprint": ds.fingerprint, "settings": settings}
+    req = {"model_fingerprint": checkpoint_fingerprint(path) if path and Path(path).is_file()
+           else None, "dataset_fingerprint": ds.fingerprint, "settings": settings}
     return json.loads(json.dumps(req, default=str))
 
 
@@ -298,8 +302,9 @@ def validate_to_dir(model, ds, out_dir, **kw) -> dict:
     """:func:`validate`, then ``validation.json`` and ``validation.png`` in ``out_dir``.
 
     Resumable: each calibrated row is appended to ``validation.partial.json``; a rerun with
-    the same model file, dataset and settings reuses those rows (other settings start
-    afresh). The partial file goes once ``validation.json`` is written."""
+    the same model weights (:func:`surrogate.checkpoint.checkpoint_fingerprint`: a model
+    retrained identically counts), dataset and settings reuses those rows (other settings
+    start afresh). The partial file goes once ``validation.json`` is written."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     partial = out_dir / PARTIAL

@@ -28,6 +28,7 @@ Writes are atomic (temporary name in the same folder, then ``os.replace``).
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 from pathlib import Path
 
@@ -106,6 +107,42 @@ def read_checkpoint(path: str | Path) -> dict:
     return obj
 
 
+# entries that say when and by what a checkpoint was written, not what it computes
+_VOLATILE = ("created", "info", "snapshots", "software_version")
+
+
+def checkpoint_fingerprint(path: str | Path) -> str:
+    """sha256 over what a checkpoint computes with: the weights, the GP, the normalisation,
+    the architecture, the axes and the parameter space, not its time stamp, training
+    record or snapshots. A model retrained with the same seed, data and settings (training
+    is deterministic on the CPU) has the same fingerprint, where its file's sha256 differs."""
+    obj = read_checkpoint(path)
+    h = hashlib.sha256()
+
+    def feed(x) -> None:
+        if isinstance(x, torch.Tensor):
+            x = x.detach().cpu().contiguous().numpy()
+        if isinstance(x, np.ndarray):
+            h.update(f"array {x.dtype} {x.shape}".encode())
+            h.update(np.ascontiguousarray(x).tobytes())
+        elif isinstance(x, dict):
+            h.update(b"{")
+            for k in sorted(x, key=str):
+                h.update(repr(k).encode())
+                feed(x[k])
+            h.update(b"}")
+        elif isinstance(x, (list, tuple)):
+            h.update(b"[")
+            for v in x:
+                feed(v)
+            h.update(b"]")
+        else:
+            h.update(repr(x).encode())
+
+    feed({k: v for k, v in obj.items() if k not in _VOLATILE})
+    return h.hexdigest()
+
+
 def info_to_json(info: dict) -> str:
     return json.dumps(info, default=json_default)
 
@@ -119,6 +156,6 @@ def snapshots_from_tensors(obj: dict) -> dict[int, dict[str, np.ndarray]]:
     return {int(e): {k: v.numpy() for k, v in s.items()} for e, s in (obj or {}).items()}
 
 
-__all__ = ["CHECKPOINT_VERSION", "FORMAT", "CheckpointError", "info_to_json", "json_default",
-           "read_checkpoint", "snapshots_from_tensors", "snapshots_to_tensors",
-           "software_version", "write_checkpoint"]
+__all__ = ["CHECKPOINT_VERSION", "FORMAT", "CheckpointError", "checkpoint_fingerprint",
+           "info_to_json", "json_default", "read_checkpoint", "snapshots_from_tensors",
+           "snapshots_to_tensors", "software_version", "write_checkpoint"]

@@ -173,6 +173,14 @@ def test_validate_in_worker_processes_gives_the_same_report(model_file, truth, t
                                                                  sort_keys=True)
     with pytest.raises(Exception, match="--jobs"):
         v.validate(m, ds, rows=[0], jobs=0, **kw)
+    # the same weights in a new file (a retrained model on a fresh machine: new time stamp,
+    # new file hash) still match the checkpoint's request
+    from surrogate.checkpoint import read_checkpoint, write_checkpoint
+
+    obj = read_checkpoint(model_file)
+    obj["created"] = "2000-01-01T00:00:00+00:00"
+    again = surrogate.load(write_checkpoint(tmp_path / "retrained.pt", obj))
+    assert v._request(again, ds, kw) == request
 
 
 def test_validate_cli_prints_coverage_and_identifiability(model_file, truth, tmp_path, capsys):

@@ -159,3 +159,21 @@ def test_pressure_only_forward_matches_and_is_differentiable(model):
     assert torch.equal(p_only.detach(), p.detach())
     p_only.sum().backward()
     assert torch.isfinite(ug.grad).all() and ug.grad.abs().sum() > 0
+
+
+def test_checkpoint_fingerprint_follows_the_weights_not_the_time_stamp(model, tmp_path):
+    import hashlib
+
+    from surrogate.checkpoint import checkpoint_fingerprint, read_checkpoint, write_checkpoint
+
+    a = model.save(tmp_path / "a.pt")
+    obj = read_checkpoint(a)
+    obj["created"] = "2000-01-01T00:00:00+00:00"  # a retrained copy: same weights, new file
+    b = write_checkpoint(tmp_path / "b.pt", obj)
+    assert hashlib.sha256(a.read_bytes()).digest() != hashlib.sha256(b.read_bytes()).digest()
+    assert checkpoint_fingerprint(a) == checkpoint_fingerprint(b)
+    first = next(iter(obj["members"][0]))  # one weight moved by one ulp-sized step
+    obj["members"][0][first] = obj["members"][0][first].clone()
+    obj["members"][0][first].view(-1)[0] += 1e-6
+    c = write_checkpoint(tmp_path / "c.pt", obj)
+    assert checkpoint_fingerprint(c) != checkpoint_fingerprint(a)
