@@ -11,7 +11,6 @@ cube), and the ensemble's own spread against its error.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
