@@ -56,11 +56,11 @@ PY
 )
 if [ "$HELD_GROUPS" -gt 0 ]; then
     step "learning curves on $HELD_GROUPS held-out seed means (network and GP heads)"
-    surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve" --repeats 3 --quiet \
-        | tee "$OUT/learning-curve.txt"
-    surrogate learning-curve "$DATA" --out-dir "$OUT/learning_curve_gp" --repeats 3 \
-        --pressure-head gp --mse-weight 30 --dropout 0.1 --quiet \
-        | tee "$OUT/learning-curve-gp.txt"
+    [ -f "$OUT/learning_curve/learning_curve.json" ] || surrogate learning-curve "$DATA" \
+        --out-dir "$OUT/learning_curve" --repeats 3 --quiet | tee "$OUT/learning-curve.txt"
+    [ -f "$OUT/learning_curve_gp/learning_curve.json" ] || surrogate learning-curve "$DATA" \
+        --out-dir "$OUT/learning_curve_gp" --repeats 3 --pressure-head gp --mse-weight 30 \
+        --dropout 0.1 --quiet | tee "$OUT/learning-curve-gp.txt"
 else
     step "no learning curves: $DATA has no held-out groups of >= 2 seeds"
 fi
