@@ -11,8 +11,8 @@
 # it). Models and reports go to OUT (default models/rve, git-ignored).
 #   [JOBS=N] bash scripts/rve-models.sh [DATASET] [OUT] [PRESET]
 # JOBS: held-out rows `inverse validate` calibrates at once (default: the number of cores).
-# VALIDATE_OTHER=1: also validate the other ensemble (64 more rows, about 5 min each on one
-# thread of a loaded 2-core machine).
+# VALIDATE_OTHER=1: also validate the other ensemble (64 more rows; 1.5-2.5 min a row on one
+# thread of the loaded 2-core machine with the GP-head ensemble, 7 Dec 2026).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-data/rve.h5}
@@ -98,13 +98,13 @@ ERR=$(model_error "$BEST")
 ERR_OTHER=$(model_error "$OTHER")
 step "validate every held-out seed: $BEST (model error sigma $ERR, normalised)"
 [ -f "$OUT/validate/validation.json" ] || inverse validate --model "$OUT/$BEST.pt" \
-    --dataset "$DATA" --out "$OUT/validate" --model-error "$ERR" --jobs "$JOBS" --quiet \
-    | tee "$OUT/validate.txt"
+    --dataset "$DATA" --out "$OUT/validate" --model-error "$ERR" --jobs "$JOBS" \
+    | tee "$OUT/validate.txt"  # a progress line per row (with ETA) on stderr
 if [ "$VALIDATE_OTHER" = 1 ]; then
     step "validate every held-out seed: $OTHER (model error sigma $ERR_OTHER), for comparison"
     [ -f "$OUT/validate-$OTHER/validation.json" ] || inverse validate --model "$OUT/$OTHER.pt" \
         --dataset "$DATA" --out "$OUT/validate-$OTHER" --model-error "$ERR_OTHER" \
-        --jobs "$JOBS" --quiet | tee "$OUT/validate-$OTHER.txt"
+        --jobs "$JOBS" | tee "$OUT/validate-$OTHER.txt"
 fi
 
 step "Sobol indices (N = 2^15) against Fig. 10, the 30 um study and the raw runs"
