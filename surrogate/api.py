@@ -172,9 +172,11 @@ class SurrogateModel:
         """
         for m in self.members:
             m.eval()
-        p, d, p_var, _ = ensemble_forward(self.members, u, distribution)
-        if self.pressure_gp is not None:
+        if self.pressure_gp is not None:  # the networks serve the distribution only
+            d = ensemble_forward(self.members, u)[1] if distribution else None
             p, p_var = self.pressure_gp(u)
+            return p, d, p_var
+        p, d, p_var, _ = ensemble_forward(self.members, u, distribution)
         return p, d, p_var
 
     def predict_unit(self, u, batch_size: int = PREDICT_BATCH,
