@@ -6,7 +6,10 @@
 # resumes: a run with a complete digest counts as finished (calendaring/data/sweep.py).
 # An `analysis compare` folder (no manifest.json) keeps its case records and analyses
 # ([seed-*/]runs/*.record.h5, *.microstructure.json), which a rerun of the same compare
-# command takes instead of running those cases again (analysis/compare.py).
+# command takes instead of running those cases again (analysis/compare.py). An `inverse
+# refine` folder (or a folder of them, as benchmarks/refine_twins.py writes) keeps its state
+# (refine.json, base.json, target.json, rounds/) and its round sweeps' manifests, designs
+# and digests, from which a rerun of the same refine command goes on.
 #   bash scripts/sweep-keep.sh RUNS KEEP              # e.g. /work/sweep-rve data/sweeps/rve
 #   bash scripts/sweep-keep.sh --restore KEEP RUNS    # on a fresh machine, before the sweep
 # Every file is written to a temporary name and renamed; files already in the destination
@@ -20,13 +23,15 @@ if [ $# -ne 2 ]; then
 fi
 src=$1 dst=$2
 kind=sweep
-if [ ! -f "$src/manifest.json" ]; then
+if [ -n "$(find "$src" -maxdepth 2 -name refine.json -print -quit 2>/dev/null)" ]; then
+    kind=refine
+elif [ ! -f "$src/manifest.json" ]; then
     if [ -n "$(find "$src" -maxdepth 3 -path '*runs/*.record.h5' -print -quit 2>/dev/null)" ]
     then
         kind=compare
     else
-        echo "sweep-keep: neither $src/manifest.json nor $src/[seed-*/]runs/*.record.h5" \
-            "found (not a sweep, compare or keep folder)" >&2
+        echo "sweep-keep: neither $src/manifest.json, $src/[seed-*/]runs/*.record.h5 nor" \
+            "$src/[*/]refine.json found (not a sweep, compare, refine or keep folder)" >&2
         exit 2
     fi
 fi
@@ -52,6 +57,17 @@ if [ "$kind" = sweep ]; then
     done
     n=0
     if [ -d "$dst/digests" ]; then n=$(find "$dst/digests" -name '*.h5' | wc -l); fi
+    echo "sweep-keep: $copied files copied to $dst ($n digests there)"
+elif [ "$kind" = refine ]; then
+    # `inverse refine` folders (one, or one per twin below SRC): the state (*.json, rounds/)
+    # and each round sweep's manifest, designs and digests; no run files or packings
+    while IFS= read -r -d '' f; do
+        case "$f" in */.*|*.tmp*|*.png|*.npz|*.pt|*.ckpt|*/rounds/*.h5) continue ;; esac  # rebuilt on resume
+        copy "${f#"$src"/}"
+    done < <(find "$src" -maxdepth 5 -type f \( -path '*/rounds/*' \
+        -o -path '*/runs/manifest.json' -o -path '*/runs/designs/*' \
+        -o -path '*/runs/digests/*' -o \( -name '*.json' ! -path '*/runs/*' \) \) -print0)
+    n=$(find "$dst" -path '*runs/digests/*.h5' | wc -l)
     echo "sweep-keep: $copied files copied to $dst ($n digests there)"
 else
     while IFS= read -r -d '' f; do

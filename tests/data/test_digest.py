@@ -149,7 +149,7 @@ def test_sweep_keep_round_trip_resumes_a_sweep_on_a_fresh_machine(sweep_folder, 
     assert "newer" in (fresh / "manifest.json").read_text()
     bad = subprocess.run(["bash", str(script), str(tmp_path / "nothing"), str(keep)],
                          capture_output=True, text=True)
-    assert bad.returncode == 2 and "not a sweep, compare or keep folder" in bad.stderr
+    assert bad.returncode == 2 and "not a sweep, compare, refine or keep folder" in bad.stderr
 
 
 def test_sweep_keep_round_trip_of_a_compare_study(tmp_path):
@@ -182,6 +182,46 @@ def test_sweep_keep_round_trip_of_a_compare_study(tmp_path):
     assert (fresh / kept[1]).read_text() == "newer analysis"
     if (root / ".git").exists():
         probe = "data/compare/rve/seed-0/runs/R1.record.h5"
+        res = subprocess.run(["git", "-C", str(root), "check-ignore", "-q", "--no-index",
+                              probe], capture_output=True)
+        assert res.returncode == 1, f"{probe} is git-ignored"
+
+
+def test_sweep_keep_round_trip_of_a_refine_study(tmp_path):
+    """A folder of `inverse refine` twins keeps each twin's state and its round sweeps'
+    manifests, designs and digests, never run files, checkpoints, packings, posterior
+    samples, models or round datasets (all rebuilt on resume); a restore puts them back; the
+    repository's keep folder (data/refine/) does not ignore the digests."""
+    import subprocess
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    script = root / "scripts" / "sweep-keep.sh"
+    study, keep, fresh = tmp_path / "twins", tmp_path / "keep", tmp_path / "fresh"
+    kept = ["twin-row0064/refine.json", "twin-row0064/base.json",
+            "twin-row0064/target.json", "twin-row0064/rounds/r00/round.json",
+            "twin-row0064/rounds/r01/refine-r01.csv", "twin-row0064/runs/manifest.json",
+            "twin-row0064/runs/designs/refine-r01.json",
+            "twin-row0064/runs/digests/refine-r01-0000-s18-ab.h5",
+            "twin-row0065/refine.json"]
+    left = ["twin-row0064/rounds/r00/posterior.npz", "twin-row0064/rounds/r01/model.pt",
+            "twin-row0064/rounds/r01/dataset.h5", "twin-row0064/runs/runs/a.h5",
+            "twin-row0064/runs/runs/a.h5.ckpt", "twin-row0064/runs/packings/b.csv",
+            "twin-row0064/runs/logs/a.log", "twin-row0064/runs/designs/r01_correlation.png",
+            "twin-row0064/.refine.json.tmp-3"]
+    for rel in kept + left:
+        (study / rel).parent.mkdir(parents=True, exist_ok=True)
+        (study / rel).write_text(rel)
+    res = subprocess.run(["bash", str(script), str(study), str(keep)], capture_output=True,
+                         text=True)
+    assert res.returncode == 0 and f"{len(kept)} files copied" in res.stdout, res.stderr
+    assert sorted(str(p.relative_to(keep)) for p in keep.rglob("*") if p.is_file()) == \
+        sorted(kept)
+    subprocess.run(["bash", str(script), "--restore", str(keep), str(fresh)], check=True,
+                   capture_output=True)
+    assert all((fresh / rel).read_text() == rel for rel in kept)
+    if (root / ".git").exists():
+        probe = "data/refine/rve/twin-row0064/runs/digests/refine-r01-0000-s18-ab.h5"
         res = subprocess.run(["git", "-C", str(root), "check-ignore", "-q", "--no-index",
                               probe], capture_output=True)
         assert res.returncode == 1, f"{probe} is git-ignored"
