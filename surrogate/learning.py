@@ -225,6 +225,7 @@ def learning_curve_figure(out: dict, path: str | Path) -> Path | None:
     """Pressure MSE and KL against training runs (log-log), with the target, the seed-mean
     floor, the power-law fit and the perfect-model KL."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import NullFormatter
 
     per = out["sizes"]
     if not per:
@@ -239,7 +240,9 @@ def learning_curve_figure(out: dict, path: str | Path) -> Path | None:
         ax1.plot(p["n"], p["pressure_mse_normalised"], ".", color="0.6")
         if p["kl_mean"] is not None:
             ax2.plot(p["n"], p["kl_mean"], ".", color="0.6")
-    ax1.plot(n, [s["pressure_mse_normalised_mean"] for s in per], "o-", label="MLP (mean)")
+    head = out.get("request", {}).get("train_config", {}).get("pressure_head", "mlp")
+    ax1.plot(n, [s["pressure_mse_normalised_mean"] for s in per], "o-",
+             label=f"{'GP pressure head' if head == 'gp' else 'MLP'} (mean)")
     fit = out.get("power_law")
     if fit:
         nn = np.geomspace(n.min(), max(n.max(), (out["runs_for_target"]["runs"] or 0)), 100)
@@ -250,17 +253,21 @@ def learning_curve_figure(out: dict, path: str | Path) -> Path | None:
         ax1.axhline(out["pressure_mse_normalised_floor"], color="k", ls=":", lw=1,
                     label="exact mean curve")
     ax1.set(xscale="log", yscale="log", xlabel="training runs",
-            ylabel="pressure MSE on held-out seed means (normalised)")
+            ylabel="pressure MSE, held-out seed means")
     ax1.legend(fontsize=8)
     kl = [s["kl_mean"] for s in per]
     if any(k is not None for k in kl):
-        ax2.plot(n, [np.nan if k is None else k for k in kl], "o-", label="MLP (mean)")
+        ax2.plot(n, [np.nan if k is None else k for k in kl], "o-",
+                 label="network (mean)" if head == "gp" else "MLP (mean)")
         kp = [s["kl_perfect"] for s in per if s["kl_perfect"] is not None]
         if kp:
             ax2.axhline(float(np.mean(kp)), color="k", ls=":", lw=1, label="perfect model")
         ax2.set(xscale="log", yscale="log", xlabel="training runs",
                 ylabel="KL(pooled seeds || predicted)")
         ax2.legend(fontsize=8)
+    for ax in fig.axes:  # the training sizes as plain numbers, no crowded minor labels
+        ax.set_xticks(n, [f"{int(v)}" for v in n])
+        ax.xaxis.set_minor_formatter(NullFormatter())
     return save_figure(fig, path, dpi=120)
 
 
