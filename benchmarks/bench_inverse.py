@@ -124,9 +124,9 @@ def main(argv=None) -> int:
     res["identifiability_slice"] = {"seconds": s}
     from inverse.posterior import sample_posterior
 
-    def post(m):
-        return sample_posterior(m, target, u_opt, np.ones(8, bool), PosteriorConfig(),
-                                loss=CompositeLoss(m, target))
+    def post(m, t=target):
+        return sample_posterior(m, t, u_opt, np.ones(8, bool), PosteriorConfig(),
+                                loss=CompositeLoss(m, t))
 
     p, s = _time(lambda: post(model))
     res["posterior"] = {"seconds": s, "acceptance": p.diagnostics["acceptance_mean"],
@@ -137,8 +137,7 @@ def main(argv=None) -> int:
     # the same posterior on the curve alone: no centroid term, so the forward passes skip
     # the distribution head (before 7 Dec 2026 they computed it and threw it away)
     curve = replace(target, distribution=None, centroids=None)
-    p, s = _time(lambda: sample_posterior(model, curve, u_opt, np.ones(8, bool),
-                                          PosteriorConfig(), loss=CompositeLoss(model, curve)))
+    p, s = _time(lambda: post(model, curve))
     res["posterior_pressure_only"] = {
         "seconds": s, "acceptance": p.diagnostics["acceptance_mean"],
         "log_prob_evaluations": p.diagnostics["log_prob_evaluations"]}

@@ -65,7 +65,7 @@ import numpy as np
 from calendaring import ConfigError
 from inverse.optimise import OptimiserConfig
 from inverse.posterior import PosteriorConfig
-from inverse.report import file_sha256, write_json
+from inverse.report import write_json
 
 FORMAT = "calendaring-refine"
 ROLE = "refine"
@@ -343,8 +343,12 @@ class Refinement:
         self.dem_seed = int(d.seed.max()) + 1 if self.distinct_beds else int(cfg.dem_seed)
         sigma0 = self.posterior.model_error_sigma or initial_model_error(m)
         self.sigma0 = float(sigma0)
+        from surrogate.checkpoint import checkpoint_fingerprint
+
         self.request = {
-            "model": str(self.model_path), "model_sha256": file_sha256(self.model_path),
+            "model": str(self.model_path),
+            # the weights, not the file: a model retrained identically resumes the folder
+            "model_fingerprint": checkpoint_fingerprint(self.model_path),
             "dataset": str(self.dataset_path), "dataset_fingerprint": d.fingerprint,
             "target": self.target_desc, "config": asdict(cfg), "dem_seed": self.dem_seed,
             "distinct_beds": self.distinct_beds,

@@ -206,6 +206,27 @@ def test_a_larger_budget_goes_on_and_another_request_is_refused(refined, setup, 
     assert len(CALLS) == 2 and [r["round"] for r in more["rounds"]] == [0, 1, 2, 3]
 
 
+def test_a_retrained_identical_model_resumes_the_refinement(refined, setup, tmp_path):
+    """The request holds the model's weights fingerprint, not its file hash: the same
+    weights in a new file (a model retrained on a fresh machine) resume the folder without
+    a DEM run."""
+    from surrogate.checkpoint import read_checkpoint, write_checkpoint
+
+    out, state, _ = refined
+    tmp, ds_path, model_path = setup
+    obj = read_checkpoint(model_path)
+    obj["created"] = "2000-01-01T00:00:00+00:00"
+    retrained = write_checkpoint(tmp_path / "retrained.pt", obj)
+    assert retrained.read_bytes() != model_path.read_bytes()
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    before = json.loads((copy / "refine.json").read_text())  # as earlier tests left it
+    assert len(before["rounds"]) == len(state["rounds"])
+    CALLS.clear()
+    again = _refinement((tmp, ds_path, retrained), copy).run()
+    assert CALLS == [] and again["rounds"] == before["rounds"]
+
+
 def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
     state = _refinement(setup, tmp_path / "one", cfg=RefineConfig(
         budget=2, batch=1, tol=1e-6, epochs=4, workers=1, candidates=500, dem_seed=9)).run()
