@@ -36,7 +36,7 @@ posterior-predictive band, and plots (band over the target, trace).
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 import torch
@@ -119,6 +119,18 @@ def normalised_sigma(model, pressure_pa: np.ndarray, sigma_pa: np.ndarray,
     span = c1 - c0
     p = np.maximum(np.abs(pressure_pa), floor_frac * np.nanmax(np.abs(pressure_pa)))
     return sigma_pa / (3.0 * np.cbrt(p) ** 2 * span)
+
+
+def with_normalised_sigma(model, target: Target, sigma_n: float) -> Target:
+    """``target`` with its sigma [Pa] set to ``sigma_n`` normalised units at every valid point:
+    the inverse of :func:`normalised_sigma` (no floor), e.g. a measured run-to-run floor."""
+    if not sigma_n > 0:
+        raise ConfigError("sigma (normalised)", sigma_n, "> 0")
+    c0 = float(np.cbrt(model.pressure_from_normalised(np.array(0.0))))
+    c1 = float(np.cbrt(model.pressure_from_normalised(np.array(1.0))))
+    p = np.where(target.valid, np.abs(target.pressure), np.nan)
+    return replace(target, sigma=np.where(target.valid,
+                                          sigma_n * 3.0 * np.cbrt(p) ** 2 * (c1 - c0), np.nan))
 
 
 class LogPosterior:
@@ -360,4 +372,4 @@ def plot_trace(result: PosteriorResult, path, symbols: dict[str, str] | None = N
 
 __all__ = ["CI_LEVEL", "PRIOR_STD", "LogPosterior", "PosteriorConfig", "PosteriorResult",
            "normalised_sigma", "observation_sigma", "plot_predictive", "plot_trace",
-           "posterior_predictive", "sample_posterior"]
+           "posterior_predictive", "sample_posterior", "with_normalised_sigma"]

@@ -14,6 +14,7 @@ from inverse.posterior import (
     observation_sigma,
     sample_posterior,
     savgol_correlation_length,
+    with_normalised_sigma,
 )
 from inverse.targets import Target
 from tests.inverse.standins import CBRT_MAX, LinearSurrogate
@@ -39,6 +40,18 @@ def test_sigma_conversion_is_the_derivative_of_the_normalisation():
     h = 1e-6 * p  # central difference of the model's own normalisation
     deriv = (m.normalise_pressure(p + h) - m.normalise_pressure(p - h)) / (2 * h)
     np.testing.assert_allclose(got, s * deriv, rtol=1e-6)
+
+
+def test_a_normalised_sigma_converts_back_to_itself():
+    m = LinearSurrogate()
+    p = np.linspace(0.0, 2e8, len(m.depth))
+    valid = p > 0
+    t = with_normalised_sigma(m, Target(m.depth, np.where(valid, p, np.nan), valid), 0.0093)
+    assert np.all(np.isnan(t.sigma[~valid])) and np.all(t.sigma[valid] > 0)
+    np.testing.assert_allclose(normalised_sigma(m, p[valid], t.sigma[valid], 0.0), 0.0093,
+                               rtol=1e-9)
+    with pytest.raises(ConfigError, match="normalised"):
+        with_normalised_sigma(m, t, 0.0)
 
 
 def test_default_sigma_and_rejection():

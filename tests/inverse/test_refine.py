@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import shutil
 import threading
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -225,6 +226,38 @@ def test_a_retrained_identical_model_resumes_the_refinement(refined, setup, tmp_
     CALLS.clear()
     again = _refinement((tmp, ds_path, retrained), copy).run()
     assert CALLS == [] and again["rounds"] == before["rounds"]
+
+
+def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined, setup,
+                                                                       tmp_path):
+    """`benchmarks/refine_twins.py recalibrate`: each finished round's model again, with a
+    smaller observation sigma, kept beside the round and reported; a rerun skips them."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_refine_twins", Path(__file__).parents[2] / "benchmarks" / "refine_twins.py")
+    twins = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(twins)
+    out, state, _ = refined
+    _tmp, ds_path, _model = setup
+    folder = tmp_path / "twins" / "twin-row0041"
+    shutil.copytree(out, folder)
+    argv = ["recalibrate", "--out", str(folder.parent), "--dataset", str(ds_path),
+            "--sigma", "0.002", "--name", "t", "--results-dir", str(tmp_path)]
+    assert twins.main(argv) == 0
+    rep = json.loads((tmp_path / "t.json").read_text())
+    assert [r["round"] for r in rep["per_round"]] == [r["round"] for r in state["rounds"]]
+    for r, row in zip(state["rounds"], rep["per_round"], strict=True):
+        rec = json.loads((folder / "rounds" / f"r{r['round']:02d}"
+                          / "recalibration-floor.json").read_text())
+        assert rec["observation_sigma_normalised"] == 0.002
+        assert rec["model_error_sigma"] == r["model_error_sigma"]
+        assert row["floor_sigma"]["mean_width_unit"] == rec["mean_width_unit"]
+        assert set(rec["truth"]) == set(r["truth"])
+    stamp = {p: p.stat().st_mtime_ns for p in folder.glob("rounds/*/recalibration-floor.json")}
+    assert twins.main(argv) == 0  # nothing recalibrated twice
+    assert {p: p.stat().st_mtime_ns for p in stamp} == stamp
+    assert twins.main([*argv[:-6], "--sigma", "0", *argv[-4:]]) == 2
 
 
 def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
