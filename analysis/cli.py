@@ -120,6 +120,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="whose snapshot nearest 0 um is analysed besides the final one: "
                         "every run's (default), R1's only (R0 shares its packing), none")
     c.add_argument("--device", default="cpu", help="torch device for TauFactor")
+    c.add_argument("--no-run", action="store_true",
+                   help="report only what is on disk (kept records and analyses, e.g. after "
+                        "scripts/sweep-keep.sh --restore): no DEM run, no new analysis")
     c.add_argument("--quiet", action="store_true")
     return ap
 
@@ -326,12 +329,14 @@ def cmd_compare(args) -> int:
         micro_kw["voxels_per_diameter"] = args.voxels_per_diameter
     kw = dict(preset=args.preset, studies=studies, extra_sets=args.set, jobs=args.jobs,
               micro=not args.no_microstructure, micro_kw=micro_kw, timeout=args.timeout,
-              progress=not args.quiet, initial=args.initial_transport)
+              progress=not args.quiet, initial=args.initial_transport, run=not args.no_run)
     if args.seeds:
         from analysis.compare import compare_seeds
 
         pooled = compare_seeds(out, args.seeds, **kw)
         print(format_seeds(pooled))
+        for s, names in pooled["missing"].items():
+            print(f"seed {s}: not on disk, not run (--no-run): {', '.join(names)}")
         print(f"wrote {out / 'seeds.json'} and {pooled['figure']}")
         return EXIT_UNSTABLE if pooled["failures"] else EXIT_OK
     rep = compare(out, seed=args.seed, **kw)

@@ -522,7 +522,7 @@ def plot_psd(diams: dict[str, np.ndarray], path: Path, title: str) -> Path:
 def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] = STUDIES,
             seed: int = 0, extra_sets: Sequence[str] = (), jobs: int = 1,
             micro: bool = True, micro_kw: dict | None = None, timeout: float | None = None,
-            progress: bool = True, initial: str = "all") -> dict:
+            progress: bool = True, initial: str = "all", run: bool = True) -> dict:
     """Run (or resume) the studies and write ``compare.json`` and PNGs into ``out_dir``.
 
     Args:
@@ -539,6 +539,9 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
             ``"R1"`` the baseline's only (R0 starts from R1's packing; the paper's claims
             are about the final state), ``"none"``. At the representative volume a
             snapshot costs minutes, so this halves the study.
+        run: False reports only what is on disk (kept records with their analyses, or run
+            files whose analysis is cached): no DEM run and no microstructure solve; a case
+            without both is listed under ``missing``.
 
     Returns:
         The report (also in ``compare.json``): ``runs`` (status of each), ``failures``,
@@ -596,6 +599,15 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
             if kept is not None and (not micro or val is not None):
                 view, st = kept, {"name": case.name, "status": "kept",
                                   "file": str(runs_dir / f"{case.name}.record.h5")}
+        if st is None and not run:  # only what is on disk: no DEM run, no new analysis
+            if out.exists() and _readable(out):
+                v = run_view(read_run(out))
+                c = cached_micro(case.name, v) if micro else None
+                if not micro or c is not None:
+                    view, val = v, c
+                    st = {"name": case.name, "status": "exists", "file": str(out)}
+            if st is None:
+                return {"name": case.name, "status": "missing"}, None, None
         if st is None:
             st = execute(case, out, preset, seed, extra_sets, timeout, progress, lock)
         if progress:
@@ -638,6 +650,7 @@ def compare(out_dir: str | Path, preset: str = "quick", studies: Sequence[str] =
                         "sets": c.sets, "no_breakage": c.no_breakage}
                        for st, c in zip(statuses, cases, strict=True)],
               "failures": [st for st in statuses if st["status"] == "failed"],
+              "missing": [st["name"] for st in statuses if st["status"] == "missing"],
               "summaries": {n: v["summary"] for n, v in ok.items()}}
     figures = []
     if micro:
@@ -772,8 +785,8 @@ def final_levels(report: dict, case: str) -> tuple[dict[float, dict], float | No
 
 def resolution_check(reports: dict[int, dict], case: str, base: str, metric: str) -> dict | None:
     """How the relative difference ``case / base - 1`` of a final-depth metric moves with the
-    voxel size: per refinement level that every seed analysed for both cases, the seeds'
-    mean of the paired relative difference; its change between the two finest levels
+    voxel size: per refinement level that every seed analysing both cases analysed for
+    both (a seed without them, e.g. one not run yet, is left out), the seeds' mean of the paired relative difference; its change between the two finest levels
     (``last_change``) and of the ratio ``case / base`` (``ratio_change``); from three levels
     whose changes shrink with one sign, their Richardson limit (``extrapolated``,
     :func:`analysis.microstructure._richardson`, as for tau). ``remaining`` is what
@@ -790,6 +803,8 @@ def resolution_check(reports: dict[int, dict], case: str, base: str, metric: str
     per_seed, tols = [], []
     for s in sorted(reports):
         (a, ta), (b, tb) = final_levels(reports[s], case), final_levels(reports[s], base)
+        if not (a and b):  # a seed without both analyses (not run yet): not in the check
+            continue
         per_seed.append({v: a[v][metric] / b[v][metric] - 1 for v in a.keys() & b.keys()
                          if a[v].get(metric) and b[v].get(metric)})
         tols += [t for t in (ta, tb) if t is not None]
@@ -893,6 +908,7 @@ def compare_seeds(out_dir: str | Path, seeds: Sequence[int], **kw) -> dict:
     reports = {s: compare(out_dir / f"seed-{s}", seed=s, **kw) for s in seeds}
     pooled = pool_seeds(reports)
     pooled["failures"] = {s: r["failures"] for s, r in reports.items() if r["failures"]}
+    pooled["missing"] = {s: r["missing"] for s, r in reports.items() if r.get("missing")}
     pooled["figure"] = str(plot_seeds(pooled, out_dir / "seeds_final_transport.png"))
     atomic_write_json(out_dir / "seeds.json", pooled)
     return pooled

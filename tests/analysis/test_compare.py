@@ -261,6 +261,10 @@ def test_resolution_check_of_paired_differences():
     assert sorted(levels) == [3.0, 4.5, 6.75] and tol == 0.02
     assert levels[6.75]["tortuosity"] == pytest.approx(2.02)
 
+    # a seed not analysed yet (a study still running) is left out of the check
+    unfinished = {**reports, 3: _fake_report(3, {"R1": (0.22, 2.0, 0.16)})}
+    assert resolution_check(unfinished, "R1", "R0", "tortuosity") == resolution_check(
+        reports, "R1", "R0", "tortuosity")
     res = resolution_check(reports, "R1", "R0", "tortuosity")
     assert res["voxels_per_diameter"] == [3.0, 4.5, 6.75]
     assert res["relative_difference"] == pytest.approx([-0.10, -0.09, -0.085])
@@ -394,3 +398,13 @@ def test_r0_r1_tiny_kept_records_replace_lost_run_files(tiny_r0r1, tmp_path, mon
     (fresh / "runs" / "R0.microstructure.json").unlink()
     with pytest.raises(AssertionError, match="run again"):
         compare(fresh, **kw)
+    # --no-run: what is on disk only; R0 (record without analysis) is missing, not run, not
+    # analysed; beside the run files with their cached analyses nothing is recomputed
+    monkeypatch.setattr(micro, "analyse_run", no_subprocess)
+    part = compare(fresh, **kw, run=False)
+    assert [r["status"] for r in part["runs"]] == ["kept", "missing"]
+    assert part["missing"] == ["R0"] and list(part["summaries"]) == ["R1"]
+    assert part["microstructure"]["R1"]["table"] == full["microstructure"]["R1"]["table"]
+    again = compare(out, **kw, run=False)
+    assert [r["status"] for r in again["runs"]] == ["exists", "exists"]
+    assert again["r0r1"] == full["r0r1"] and again["missing"] == []
