@@ -786,9 +786,10 @@ def final_levels(report: dict, case: str) -> tuple[dict[float, dict], float | No
 def resolution_check(reports: dict[int, dict], case: str, base: str, metric: str) -> dict | None:
     """How the relative difference ``case / base - 1`` of a final-depth metric moves with the
     voxel size: per refinement level that every seed analysing both cases analysed for
-    both (a seed without them, e.g. one not run yet, is left out), the seeds' mean of the paired relative difference; its change between the two finest levels
-    (``last_change``) and of the ratio ``case / base`` (``ratio_change``); from three levels
-    whose changes shrink with one sign, their Richardson limit (``extrapolated``,
+    both (a seed without them, e.g. one not run yet, is left out), the seeds' mean of the
+    paired relative difference; its change between the two finest levels (``last_change``)
+    and of the ratio ``case / base`` (``ratio_change``); from three levels whose changes
+    shrink with one sign, their Richardson limit (``extrapolated``,
     :func:`analysis.microstructure._richardson`, as for tau). ``remaining`` is what
     resolution may still change: the distance to that limit, the last change when only two
     levels exist, None when the changes do not shrink. ``converged`` when the remaining
