@@ -22,7 +22,7 @@ set to the dataset's own run-to-run floor (the square root of the replicate grou
 per-point variance in the model's normalisation, :func:`surrogate.evaluate.replicate_comparison`)
 in place of the posterior's default (5 % of the pressure + 1 % of its maximum, about twice
 that floor at 100 um), the round's model error unchanged. No DEM run; one calibration a round,
-kept beside the round (``recalibration-floor.json``) so a rerun skips it:
+kept beside the round (``recalibration-floor.json``) so a rerun at the same sigma skips it:
 
     python benchmarks/refine_twins.py recalibrate --out studies/refine \
         --dataset data/reference.h5
@@ -201,22 +201,24 @@ def cmd_recalibrate(args) -> int:
     if sigma_n is not None and not sigma_n > 0:
         print(f"--sigma {sigma_n}: must be > 0 (normalised units)", file=sys.stderr)
         return 2
+    if sigma_n is None:  # the floor in the initial model's normalisation
+        first = json.loads((folders[0] / "refine.json").read_text())
+        sigma_n = floor_sigma(load(first["request"]["model"]), ds)
+        print(f"[twins] observation sigma = the run-to-run floor, {sigma_n:.4f} normalised",
+              file=sys.stderr, flush=True)
     for folder in folders:
         state = json.loads((folder / "refine.json").read_text())
         req = state["request"]
         for rec in state["rounds"]:
             r = rec["round"]
             path = folder / "rounds" / f"r{r:02d}" / "recalibration-floor.json"
-            if path.exists():
-                continue
+            if path.exists() and np.isclose(json.loads(path.read_text())[
+                    "observation_sigma_normalised"], sigma_n, rtol=1e-9, atol=0.0):
+                continue  # done at this sigma (another sigma is recalibrated again)
             model_path = Path(rec["model"])
             if r > 0 and not model_path.exists():  # the folder moved: the round's own copy
                 model_path = folder / "rounds" / f"r{r:02d}" / "model.pt"
             model = load(model_path)
-            if sigma_n is None:
-                sigma_n = floor_sigma(model, ds)
-                print(f"[twins] observation sigma = the run-to-run floor, {sigma_n:.4f} "
-                      "normalised", file=sys.stderr, flush=True)
             row = int(req["target"]["row"])
             target = with_normalised_sigma(
                 model, row_target(model, ds, row, req["use_distribution"]), sigma_n)

@@ -258,6 +258,9 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
     assert twins.main(argv) == 0  # nothing recalibrated twice
     assert {p: p.stat().st_mtime_ns for p in stamp} == stamp
     assert twins.main([*argv[:-6], "--sigma", "0", *argv[-4:]]) == 2
+    assert twins.main([*argv[:-6], "--sigma", "0.004", *argv[-4:]]) == 0  # another sigma
+    assert all(p.stat().st_mtime_ns != t for p, t in stamp.items())
+    assert json.loads(next(iter(stamp)).read_text())["observation_sigma_normalised"] == 0.004
 
 
 def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
