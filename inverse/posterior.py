@@ -109,16 +109,21 @@ def observation_sigma(target: Target, cfg: PosteriorConfig) -> np.ndarray:
     return np.where(target.valid, s, np.nan)
 
 
+def _cbrt_span(model) -> float:
+    """``cbrt_max - cbrt_min`` of the model's normalisation, read through
+    ``pressure_from_normalised`` (its values at 0 and 1)."""
+    c0 = float(np.cbrt(model.pressure_from_normalised(np.array(0.0))))
+    c1 = float(np.cbrt(model.pressure_from_normalised(np.array(1.0))))
+    return c1 - c0
+
+
 def normalised_sigma(model, pressure_pa: np.ndarray, sigma_pa: np.ndarray,
                      floor_frac: float) -> np.ndarray:
     """Pa -> normalised units by the derivative of the cube-root normalisation at the
     observed pressure (delta method). The span ``cbrt_max - cbrt_min`` is read from the
     model through ``pressure_from_normalised`` (its values at 0 and 1)."""
-    c0 = float(np.cbrt(model.pressure_from_normalised(np.array(0.0))))
-    c1 = float(np.cbrt(model.pressure_from_normalised(np.array(1.0))))
-    span = c1 - c0
     p = np.maximum(np.abs(pressure_pa), floor_frac * np.nanmax(np.abs(pressure_pa)))
-    return sigma_pa / (3.0 * np.cbrt(p) ** 2 * span)
+    return sigma_pa / (3.0 * np.cbrt(p) ** 2 * _cbrt_span(model))
 
 
 def with_normalised_sigma(model, target: Target, sigma_n: float) -> Target:
@@ -126,11 +131,9 @@ def with_normalised_sigma(model, target: Target, sigma_n: float) -> Target:
     the inverse of :func:`normalised_sigma` (no floor), e.g. a measured run-to-run floor."""
     if not sigma_n > 0:
         raise ConfigError("sigma (normalised)", sigma_n, "> 0")
-    c0 = float(np.cbrt(model.pressure_from_normalised(np.array(0.0))))
-    c1 = float(np.cbrt(model.pressure_from_normalised(np.array(1.0))))
     p = np.where(target.valid, np.abs(target.pressure), np.nan)
-    return replace(target, sigma=np.where(target.valid,
-                                          sigma_n * 3.0 * np.cbrt(p) ** 2 * (c1 - c0), np.nan))
+    return replace(target, sigma=np.where(
+        target.valid, sigma_n * 3.0 * np.cbrt(p) ** 2 * _cbrt_span(model), np.nan))
 
 
 class LogPosterior:
