@@ -26,6 +26,11 @@ kept beside the round (``recalibration-floor.json``) so a rerun at the same sigm
 
     python benchmarks/refine_twins.py recalibrate --out studies/refine \
         --dataset data/reference.h5
+
+``recalibrate --perfect`` bounds what any refinement could reach: the same floor sigma with no
+surrogate error at all (model error 0, the ensemble's variance left out), as if the surrogate
+were the DEM's mean curve itself; the target is still one run on one bed, so its bed-to-bed
+scatter stays. Kept as ``recalibration-perfect.json``; the report gives both tables.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ from calendaring import read_dataset, write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
+# recalibration kind (file recalibration-<kind>.json) -> its key in the report's rounds
+RECALIBRATIONS = {"floor": "floor_sigma", "perfect": "perfect_surrogate"}
 
 
 def default_twins(ds) -> list[int]:
@@ -102,12 +109,15 @@ def cmd_report(args) -> int:
         e = [x["error_before_training"]["pressure_rmse_normalised"] for x in recs
              if x.get("error_before_training")]
         row["out_of_sample_rmse_mean"] = float(np.mean(e)) if e else None
-        floor = [folder / "rounds" / f"r{r:02d}" / "recalibration-floor.json"
-                 for folder in folders]
-        if all(f.exists() for f in floor):
-            fl = [json.loads(f.read_text()) for f in floor]
-            row["floor_sigma"] = {
+        for kind, key in RECALIBRATIONS.items():
+            files = [folder / "rounds" / f"r{r:02d}" / f"recalibration-{kind}.json"
+                     for folder in folders]
+            if not all(f.exists() for f in files):
+                continue
+            fl = [json.loads(f.read_text()) for f in files]
+            row[key] = {
                 "observation_sigma_normalised": fl[0]["observation_sigma_normalised"],
+                "model_error_sigma_mean": float(np.mean([x["model_error_sigma"] for x in fl])),
                 "mean_width_unit": float(np.mean([x["mean_width_unit"] for x in fl])),
                 "width_unit": {n: float(np.mean([x["posterior"][n]["width_unit"] for x in fl]))
                                for n in names},
@@ -140,23 +150,31 @@ def cmd_report(args) -> int:
                      f"{row['mean_width_unit']:.3f} | " + " | ".join(cells) + " |")
     lines += ["", "Cells: mean 90 % interval width (unit range) over the twins, and in "
               "brackets the share of twins whose truth lies inside."]
-    fl = [row for row in per_round if "floor_sigma" in row]
-    if fl:
-        lines += ["", f"The same rounds' models with the observation sigma at the run-to-run "
-                  f"floor ({fl[0]['floor_sigma']['observation_sigma_normalised']:.4f} "
-                  "normalised; `recalibrate`):", "",
-                  "| round | sigma | smallest principal sd (default sigma / floor) | "
-                  "mean 90 % width | " + " | ".join(names) + " |",
+    titles = {"floor_sigma": "The same rounds' models with the observation sigma at the "
+                             "run-to-run floor ({:.4f} normalised; `recalibrate`):",
+              "perfect_surrogate": "A perfect surrogate at the same floor ({:.4f}; model error "
+                                   "0, no ensemble variance; `recalibrate --perfect`): the "
+                                   "narrowest any refinement could make the intervals:"}
+    shown = False
+    for key, title in titles.items():
+        fl = [row for row in per_round if key in row]
+        if not fl:
+            continue
+        shown = True
+        lines += ["", title.format(fl[0][key]["observation_sigma_normalised"]), "",
+                  "| round | model error sigma | smallest principal sd (default sigma / "
+                  "this) | mean 90 % width | " + " | ".join(names) + " |",
                   "|" + "---|" * (4 + len(names))]
         for row in fl:
-            f = row["floor_sigma"]
+            f = row[key]
             cells = [f"{f['width_unit'][n]:.2f} ({100 * f['coverage'][n]:.0f} %)"
                      for n in names]
             sd0 = row.get("smallest_principal_sd_unit")
             sd = (f"{sd0:.3f}" if sd0 is not None else "-") + \
                 f" / {f['smallest_principal_sd_unit']:.3f}"
-            lines.append(f"| {row['round']} | {row['model_error_sigma_mean']:.4f} | {sd} | "
+            lines.append(f"| {row['round']} | {f['model_error_sigma_mean']:.4f} | {sd} | "
                          f"{f['mean_width_unit']:.3f} | " + " | ".join(cells) + " |")
+    if shown:
         lines += ["", "Principal sd: the posterior's standard deviation along its best-pinned "
                   "axis (unit range; a uniform prior has 0.289 along every axis)."]
     write_text(results / f"{args.name}.md", "\n".join(lines) + "\n")
@@ -206,15 +224,17 @@ def cmd_recalibrate(args) -> int:
         sigma_n = floor_sigma(load(first["request"]["model"]), ds)
         print(f"[twins] observation sigma = the run-to-run floor, {sigma_n:.4f} normalised",
               file=sys.stderr, flush=True)
+    kind = "perfect" if args.perfect else "floor"
     for folder in folders:
         state = json.loads((folder / "refine.json").read_text())
         req = state["request"]
         for rec in state["rounds"]:
             r = rec["round"]
-            path = folder / "rounds" / f"r{r:02d}" / "recalibration-floor.json"
+            path = folder / "rounds" / f"r{r:02d}" / f"recalibration-{kind}.json"
             if path.exists() and np.isclose(json.loads(path.read_text())[
                     "observation_sigma_normalised"], sigma_n, rtol=1e-9, atol=0.0):
                 continue  # done at this sigma (another sigma is recalibrated again)
+            model_error = 0.0 if args.perfect else rec["model_error_sigma"]
             model_path = Path(rec["model"])
             if r > 0 and not model_path.exists():  # the folder moved: the round's own copy
                 model_path = folder / "rounds" / f"r{r:02d}" / "model.pt"
@@ -223,8 +243,9 @@ def cmd_recalibrate(args) -> int:
             target = with_normalised_sigma(
                 model, row_target(model, ds, row, req["use_distribution"]), sigma_n)
             post = PosteriorConfig(**{
-                k: v for k, v in {**req["posterior"],
-                                  "model_error_sigma": rec["model_error_sigma"]}.items()
+                k: v for k, v in {**req["posterior"], "model_error_sigma": model_error,
+                                  "use_model_variance": not args.perfect and req[
+                                      "posterior"].get("use_model_variance", True)}.items()
                 if k in PosteriorConfig.__dataclass_fields__})
             oc = calibrate_target(model, target, optimiser=OptimiserConfig(**{
                 k: v for k, v in req["optimiser"].items()
@@ -235,8 +256,9 @@ def cmd_recalibrate(args) -> int:
             u = np.asarray(oc.result["parameters_unit"], float)
             rows = _posterior_rows(summary)
             res = {"round": r, "model": str(model_path), "row": row,
-                   "observation_sigma_normalised": sigma_n,
-                   "model_error_sigma": rec["model_error_sigma"],
+                   "observation_sigma_normalised": sigma_n, "kind": kind,
+                   "model_error_sigma": model_error,
+                   "use_model_variance": post.use_model_variance,
                    "posterior": rows,
                    "posterior_diagnostics": {k: oc.result["posterior"]["diagnostics"][k]
                                              for k in ("acceptance_mean", "long_enough")},
@@ -250,7 +272,7 @@ def cmd_recalibrate(args) -> int:
                 res["principal_sd_unit_default_sigma"] = principal_sd(
                     np.load(npz)["samples_unit"])
             write_json(path, res)
-            print(f"[twins] {folder.name} round {r}: mean 90 % width "
+            print(f"[twins] {folder.name} round {r} ({kind}): mean 90 % width "
                   f"{res['mean_width_unit']:.3f} (default sigma {rec['mean_width_unit']:.3f})"
                   f", truth inside {sum(t['inside_ci90'] for t in res['truth'].values())}/"
                   f"{len(res['truth'])}", file=sys.stderr, flush=True)
@@ -285,6 +307,9 @@ def main(argv=None) -> int:
     c.add_argument("--sigma", type=float, default=None,
                    help="the observation sigma, normalised (default: the dataset's "
                         "run-to-run floor)")
+    c.add_argument("--perfect", action="store_true",
+                   help="as if the surrogate were perfect (model error 0, no ensemble "
+                        "variance): the narrowest intervals any refinement could reach")
     for q in (r, p, c):
         q.add_argument("--name", default="refine_twins",
                        help="the report's file name (.json, .md)")

@@ -1,5 +1,11 @@
 # ---
 # jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#       format_version: '1.3'
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -116,7 +122,9 @@ for r in state["rounds"][1:]:
 # budget of 12 runs, in progress (the report says how many twins and rounds are done). Round
 # 0 is the one-shot calibration the user had before. At 100 um `recalibrate` also ran every
 # round's model again with the observation sigma at the DEM's run-to-run floor instead of
-# the default 5 % + 1 % (README: why the intervals do not narrow).
+# the default 5 % + 1 %, and once more as if the surrogate were perfect (no model error, no
+# ensemble variance): the narrowest intervals any refinement could reach (README: why the
+# intervals do not narrow).
 
 # %%
 def show(rep):
@@ -132,12 +140,14 @@ def show(rep):
               + "".join(f"{r['width_unit'][n]:>6.2f}/{100 * r['coverage'][n]:>3.0f}"
                         for n in names))
     print("per parameter: mean 90 % width (unit range) / % of twins whose truth is inside")
-    floor = [r for r in rep["per_round"] if "floor_sigma" in r]
-    if floor:
-        f0 = floor[0]["floor_sigma"]["observation_sigma_normalised"]
-        print(f"observation sigma at the run-to-run floor ({f0:.4f} normalised):")
-        for r in floor:
-            f = r["floor_sigma"]
+    for key, what in (("floor_sigma", "observation sigma at the run-to-run floor"),
+                      ("perfect_surrogate", "a perfect surrogate at that floor")):
+        rounds = [r for r in rep["per_round"] if key in r]
+        if not rounds:
+            continue
+        print(f"{what} ({rounds[0][key]['observation_sigma_normalised']:.4f} normalised):")
+        for r in rounds:
+            f = r[key]
             print(f"{r['round']:>5d}  mean width {f['mean_width_unit']:.3f} (default sigma "
                   f"{r['mean_width_unit']:.3f}); smallest principal sd "
                   f"{r.get('smallest_principal_sd_unit', float('nan')):.3f} -> "

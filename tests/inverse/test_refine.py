@@ -261,6 +261,19 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
     assert twins.main([*argv[:-6], "--sigma", "0.004", *argv[-4:]]) == 0  # another sigma
     assert all(p.stat().st_mtime_ns != t for p, t in stamp.items())
     assert json.loads(next(iter(stamp)).read_text())["observation_sigma_normalised"] == 0.004
+    # --perfect: no surrogate error at all, kept in its own file beside the floor's
+    floor = {p: p.stat().st_mtime_ns for p in stamp}
+    assert twins.main([*argv, "--perfect"]) == 0
+    assert {p: p.stat().st_mtime_ns for p in floor} == floor
+    rep = json.loads((tmp_path / "t.json").read_text())
+    for r, row in zip(state["rounds"], rep["per_round"], strict=True):
+        rec = json.loads((folder / "rounds" / f"r{r['round']:02d}"
+                          / "recalibration-perfect.json").read_text())
+        assert rec["kind"] == "perfect" and rec["model_error_sigma"] == 0.0
+        assert rec["use_model_variance"] is False
+        assert row["perfect_surrogate"]["mean_width_unit"] == rec["mean_width_unit"]
+        assert row["floor_sigma"]["model_error_sigma_mean"] == r["model_error_sigma"]
+    assert "A perfect surrogate" in (tmp_path / "t.md").read_text()
 
 
 def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
