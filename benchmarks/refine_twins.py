@@ -106,6 +106,12 @@ def cmd_report(args) -> int:
                             for n in names},
                "abs_optimum_error_unit": {n: float(np.mean([
                    abs(x["truth"][n]["optimum_error_unit"]) for x in recs])) for n in names}}
+        se = [width_standard_error(np.load(npz)["samples_unit"],
+                                   int(t["request"]["posterior"]["walkers"]))
+              for t, folder in zip(twins, folders, strict=True)
+              if (npz := folder / "rounds" / f"r{r:02d}" / "posterior.npz").exists()]
+        row["mean_width_se_unit"] = (float(np.sqrt(np.sum(np.square(se)))) / len(se)
+                                     if len(se) == len(recs) else None)
         e = [x["error_before_training"]["pressure_rmse_normalised"] for x in recs
              if x.get("error_before_training")]
         row["out_of_sample_rmse_mean"] = float(np.mean(e)) if e else None
@@ -145,11 +151,14 @@ def cmd_report(args) -> int:
             else "-"
         cells = [f"{row['width_unit'][n]:.2f} ({100 * row['coverage'][n]:.0f} %)"
                  for n in names]
+        se = row["mean_width_se_unit"]
+        width = f"{row['mean_width_unit']:.3f}" + (f" +- {se:.3f}" if se is not None else "")
         lines.append(f"| {row['round']} | {row['runs_done_mean']:.0f} | "
                      f"{row['model_error_sigma_mean']:.4f} | {oos} | "
-                     f"{row['mean_width_unit']:.3f} | " + " | ".join(cells) + " |")
+                     f"{width} | " + " | ".join(cells) + " |")
     lines += ["", "Cells: mean 90 % interval width (unit range) over the twins, and in "
-              "brackets the share of twins whose truth lies inside."]
+              "brackets the share of twins whose truth lies inside. The mean width's +- is "
+              "its MCMC sampling error, estimated from four interleaved sets of walkers."]
     titles = {"floor_sigma": "The same rounds' models with the observation sigma at the "
                              "run-to-run floor ({:.4f} normalised; `recalibrate`):",
               "perfect_surrogate": "A perfect surrogate at the same floor ({:.4f}; model error "
@@ -190,6 +199,23 @@ def floor_sigma(model, ds) -> float:
     if rep is None:
         raise SystemExit("the dataset has no replicate group of >= 2 runs: no floor to use")
     return float(np.sqrt(rep["pressure_mse_normalised_floor"]))
+
+
+def width_standard_error(samples_unit: np.ndarray, walkers: int, groups: int = 4) -> float:
+    """The MCMC sampling error of a posterior's mean 90 % width (unit range), estimated by
+    splitting the walkers into ``groups`` interleaved sets (emcee's flat chain is ordered step
+    by step, walker by walker) and taking the spread of their mean widths over
+    ``sqrt(groups)``. The walkers of one ensemble move together, so this is an estimate, not a
+    bound; it tells whether a change between rounds is larger than the sampling noise."""
+    s = np.asarray(samples_unit, float)
+    s = s.reshape(-1, walkers, s.shape[-1])
+
+    def width(x):
+        q = np.quantile(x.reshape(-1, x.shape[-1]), [0.05, 0.95], axis=0)
+        return float(np.mean(q[1] - q[0]))
+
+    w = [width(s[:, g::groups]) for g in range(groups)]
+    return float(np.std(w, ddof=1) / np.sqrt(groups))
 
 
 def principal_sd(samples_unit: np.ndarray) -> list[float]:

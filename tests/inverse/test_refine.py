@@ -254,6 +254,7 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
         assert rec["model_error_sigma"] == r["model_error_sigma"]
         assert row["floor_sigma"]["mean_width_unit"] == rec["mean_width_unit"]
         assert set(rec["truth"]) == set(r["truth"])
+        assert 0 < row["mean_width_se_unit"] < row["mean_width_unit"]
     stamp = {p: p.stat().st_mtime_ns for p in folder.glob("rounds/*/recalibration-floor.json")}
     assert twins.main(argv) == 0  # nothing recalibrated twice
     assert {p: p.stat().st_mtime_ns for p in stamp} == stamp
@@ -429,3 +430,36 @@ def test_retrain_keeps_a_gp_pressure_head_refitted_on_the_refine_rows():
         return float(np.mean((pred - m.normalise_pressure(ds.pressure[ref])) ** 2))
 
     assert err(new) < 0.5 * err(model)
+
+
+def test_the_width_standard_error_matches_the_spread_of_independent_draws():
+    """`refine_twins.width_standard_error` from one chain against the spread of the mean 90 %
+    width over many independent chains of the same size (independent samples: the walker
+    split is then exact up to its own sampling error, 3 degrees of freedom)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_refine_twins", Path(__file__).parents[2] / "benchmarks" / "refine_twins.py")
+    twins = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(twins)
+    rng = np.random.default_rng(3)
+    steps, walkers, dims = 400, 32, 3
+
+    def mean_width(x):
+        q = np.quantile(x, [0.05, 0.95], axis=0)
+        return np.mean(q[1] - q[0])
+
+    draws = [mean_width(rng.normal(size=(steps * walkers, dims))) for _ in range(300)]
+    truth = np.std(draws, ddof=1)
+    est = [twins.width_standard_error(rng.normal(size=(steps * walkers, dims)), walkers)
+           for _ in range(40)]
+    assert 0.6 < np.sqrt(np.mean(np.square(est))) / truth < 1.5
+    # walkers stuck at their own values: the chain holds 32 samples, not 12,800, and the
+    # walker split (unlike a split by time) sees it
+    truth_stuck = np.std([mean_width(rng.normal(size=(walkers, dims))) for _ in range(300)],
+                         ddof=1)
+    est = [twins.width_standard_error(np.repeat(rng.normal(size=(1, walkers, dims)), steps,
+                                                axis=0).reshape(-1, dims), walkers)
+           for _ in range(40)]
+    assert truth_stuck > 4 * truth
+    assert 0.5 < np.sqrt(np.mean(np.square(est))) / truth_stuck < 2.0
