@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring import read_dataset, write_json, write_text
+from calendaring import pressure_components, read_dataset, write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -140,6 +140,11 @@ def cmd_report(args) -> int:
                       "rounds": len(t["rounds"])} for t in twins],
            "model": twins[0]["request"]["model"], "dataset": twins[0]["request"]["dataset"],
            "config": twins[0]["request"]["config"], "per_round": per_round}
+    ds_path = Path(rep["dataset"])
+    if not ds_path.is_absolute() and not ds_path.exists():
+        ds_path = ROOT / ds_path  # a path relative to the checkout that ran the twins
+    pc = pressure_components(read_dataset(ds_path)) if ds_path.exists() else None
+    rep["pressure_components"] = pc
     results = Path(args.results_dir)
     results.mkdir(parents=True, exist_ok=True)
     write_json(results / f"{args.name}.json", rep)
@@ -186,6 +191,14 @@ def cmd_report(args) -> int:
     if shown:
         lines += ["", "Principal sd: the posterior's standard deviation along its best-pinned "
                   "axis (unit range; a uniform prior has 0.289 along every axis)."]
+    if pc is not None:
+        lines += ["", f"The dataset's pressure curves resolve {pc['resolved']} of "
+                  f"{pc['tested']} principal components above the bed-to-bed scatter (Holm, "
+                  f"alpha {pc['alpha']}; {pc['groups']} replicate groups): "
+                  f"{100 * (pc['signal_share_resolved'] or 0):.1f} % of the parameter-driven "
+                  "variance. Noise share (bed-to-bed / total variance) of components 1-"
+                  f"{pc['tested']}: " + ", ".join(f"{c['noise_share']:.2f}"
+                                                  for c in pc["components"]) + "."]
     write_text(results / f"{args.name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

@@ -56,7 +56,8 @@ _export("calendaring.data.curves", "resample_pressure", "smooth")
 _export("calendaring.data.dataset", "Dataset", "DatasetError", "KL_FLOOR", "bin_centres",
         "bin_events", "build_dataset", "centroids", "histogram_edges", "kl_divergence",
         "noise_floor", "read_dataset", "sampled_kl_floor", "synthetic_dataset",
-        "write_dataset", "append_runs", "dataset_config", "perfect_model_kl", "seed_means")
+        "write_dataset", "append_runs", "dataset_config", "perfect_model_kl", "seed_means",
+        "pressure_components")
 _export("calendaring.data.design", "read_design_csv", "write_design_csv")
 _export("calendaring.data.sweep", "SweepOptions", "read_manifest", "sweep")
 _export("calendaring.cli", "summary")

@@ -312,7 +312,7 @@ def cmd_dataset(args) -> int:
                        command="calendaring dataset " + " ".join(sys.argv[2:]), notes=notes)
     write_dataset(out, ds)
     from calendaring.core.fileio import write_json
-    from calendaring.data.dataset import noise_floor, provenance_report
+    from calendaring.data.dataset import noise_floor, pressure_components, provenance_report
 
     prov = write_json(out.with_name(out.stem + ".provenance.json"),
                       provenance_report(args.runs, ds))
@@ -325,6 +325,13 @@ def cmd_dataset(args) -> int:
     if nf["pressure_mse_normalised"] is not None:
         print(f"replicate noise floor: pressure MSE {nf['pressure_mse_normalised']:.3g} "
               f"(normalised), KL to group mean {nf['kl_to_group_mean']:.3g}")
+    pc = pressure_components(ds)
+    if pc is not None:
+        print(f"pressure curves: {pc['resolved']} of {pc['tested']} principal components "
+              f"above the bed-to-bed scatter (Holm, alpha {pc['alpha']}), holding "
+              f"{100 * (pc['signal_share_resolved'] or 0):.1f} % of the parameter-driven "
+              f"variance: a calibration on one curve can pin at most that many parameter "
+              f"combinations")
     return EXIT_OK
 
 

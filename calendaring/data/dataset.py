@@ -834,7 +834,8 @@ def append_runs(ds: Dataset, folder: str | Path, names: Iterable[str] | None = N
 def provenance_report(folder: str | Path, ds: Dataset) -> dict:
     """What a committed dataset needs beside it: how it was made (command, software version,
     designs and their largest |r|), the sweep's wall times and run counts per role (from the
-    manifest), breakage events per run, and the replicate noise floors."""
+    manifest), breakage events per run, the replicate noise floors and how many components
+    of the pressure curves stand above them (:func:`pressure_components`)."""
     folder = Path(folder)
     rep = {"dataset_fingerprint": ds.fingerprint, **ds.provenance}
     designs = {}
@@ -866,7 +867,67 @@ def provenance_report(folder: str | Path, ds: Dataset) -> dict:
                              "max": int(ev.max()), "runs_without_events": int(np.sum(ev == 0))}
     rep["rows_by_role"] = {r: int(np.sum(ds.role == r)) for r in sorted(set(ds.role))}
     rep["noise_floor"] = noise_floor(ds)
+    rep["pressure_components"] = pressure_components(ds)
     return rep
+
+
+def pressure_components(ds: Dataset, n_components: int = 10, alpha: float = 0.05
+                        ) -> dict | None:
+    """How many independent numbers a pressure curve carries above the bed-to-bed scatter.
+
+    The curves (normalised cube-root units) are split into principal components over all
+    rows. For each component, its variance over the rows is set against the pooled variance
+    of its scores within the replicate groups (the same parameters on other beds: pure
+    scatter, ``dof = sum (n_g - 1)``). A component whose scores vary no more than the
+    scatter carries no information on the parameters: with ``ratio = variance /
+    bed_to_bed`` approximately ``F(n - 1, dof)`` under that null, ``p = F.sf(ratio)`` and
+    Holm's step-down procedure at ``alpha`` over the ``n_components`` tested marks the
+    resolved ones. ``signal_variance = max(variance - bed_to_bed, 0)``;
+    ``signal_share_resolved`` is the resolved components' share of the summed signal.
+
+    The number resolved bounds how many parameter combinations one measured curve can pin
+    down, whatever the calibration or the surrogate: a calibration of 8 parameters from a
+    curve that resolves 2 components is a ridge in 6 directions. Components are ordered by
+    variance, so the test is a screen, not an exact count (a component chosen for its large
+    variance has its ratio inflated slightly). None without a replicate group of >= 2 runs.
+    """
+    from scipy.stats import f as f_dist
+
+    if not 0 < alpha < 1:
+        raise ConfigError("alpha", alpha, "(0, 1)")
+    if int(n_components) < 1:
+        raise ConfigError("n_components", n_components, "an integer >= 1")
+    groups = [np.nonzero(ds.group == g)[0] for g in sorted(set(int(g) for g in ds.group
+                                                                if g >= 0))]
+    groups = [idx for idx in groups if len(idx) >= 2]
+    if not groups:
+        return None
+    x = ds.pressure_normalised
+    k = int(min(n_components, len(x) - 1, x.shape[1]))
+    _, _, vt = np.linalg.svd(x - x.mean(axis=0), full_matrices=False)
+    scores = (x - x.mean(axis=0)) @ vt[:k].T
+    dof = int(sum(len(idx) - 1 for idx in groups))
+    within = sum(((scores[idx] - scores[idx].mean(axis=0)) ** 2).sum(axis=0)
+                 for idx in groups) / dof
+    total = scores.var(axis=0, ddof=1)
+    ratio = total / np.maximum(within, np.finfo(float).tiny)
+    pval = f_dist.sf(ratio, len(x) - 1, dof)
+    resolved = np.zeros(k, bool)
+    for rank, j in enumerate(np.argsort(pval)):  # Holm: step down until one fails
+        if pval[j] > alpha / (k - rank):
+            break
+        resolved[j] = True
+    signal = np.clip(total - within, 0.0, None)
+    comps = [{"index": j + 1, "variance": float(total[j]), "bed_to_bed_variance": float(
+        within[j]), "signal_variance": float(signal[j]), "noise_share": float(
+        within[j] / total[j]) if total[j] > 0 else None, "f_ratio": float(ratio[j]),
+              "p_value": float(pval[j]), "resolved": bool(resolved[j])} for j in range(k)]
+    return {"rows": len(x), "groups": len(groups), "dof_bed_to_bed": dof, "alpha": alpha,
+            "tested": k, "resolved": int(resolved.sum()),
+            "resolved_components": [c["index"] for c in comps if c["resolved"]],
+            "signal_share_resolved": float(signal[resolved].sum() / signal.sum())
+            if signal.sum() > 0 else None,
+            "components": comps, "units": "normalised cube-root pressure, squared"}
 
 
 # ---------------------------------------------------------------------- synthetic data
@@ -930,6 +991,7 @@ def synthetic_dataset(n: int = 64, seed: int = 0, n_points: int = 196, bins: int
 __all__ = ["FORMAT", "KL_FLOOR", "ROLES", "SCHEMA_VERSION", "Dataset", "DatasetError",
            "append_runs", "bin_centres", "bin_events", "build_dataset", "centroids",
            "dataset_config", "histogram_edges",
-           "kl_divergence", "noise_floor", "perfect_model_kl", "provenance_report",
+           "kl_divergence", "noise_floor", "perfect_model_kl", "pressure_components",
+           "provenance_report",
            "read_dataset", "resample_pressure", "sampled_kl_floor", "seed_means", "smooth",
            "synthetic_dataset", "synthetic_response", "write_dataset"]

@@ -14,6 +14,7 @@ from calendaring.data.dataset import (
     kl_divergence,
     noise_floor,
     perfect_model_kl,
+    pressure_components,
     read_dataset,
     resample_pressure,
     sampled_kl_floor,
@@ -211,3 +212,41 @@ def test_builder_skips_foreign_and_corrupt_run_files(tmp_path):
         build_dataset(tmp_path, progress=False)
     with pytest.raises(ConfigError, match="RUNS"):
         build_dataset(tmp_path / "nope", progress=False)
+
+
+def _curves_of_rank(rank_signal, noise, seed=0, groups=12, replicates=4, n=150):
+    """Cube-root curves = base + sum_j a_j(u) f_j(z) (``rank_signal`` terms, amplitudes of
+    order 1) + per-run noise spread over 30 other smooth shapes (sd ``noise`` each): the
+    signal lives in exactly ``rank_signal`` components."""
+    from dataclasses import replace
+
+    ds = synthetic_dataset(n, seed=seed, replicate_groups=groups, replicates=replicates)
+    rng = np.random.default_rng(seed)
+    z = np.linspace(0.0, 1.0, len(ds.depth))
+    shapes = np.array([np.sin((j + 1) * np.pi * z) for j in range(rank_signal + 30)])
+    u = ds.unit_params
+    amp = np.column_stack([np.cos(2.0 * u[:, j]) + u[:, j + 1] ** 2
+                           for j in range(rank_signal)])
+    c = 100.0 + 60.0 * z + 3.0 * amp @ shapes[:rank_signal] \
+        + noise * rng.standard_normal((len(u), 30)) @ shapes[rank_signal:]
+    p = c**3
+    return replace(ds, pressure=p, pressure_raw=p, cbrt_min=float(c.min()),
+                   cbrt_max=float(c.max()))
+
+
+def test_pressure_components_count_the_signal_above_the_bed_to_bed_scatter():
+    """Curves built from 2 (then 3) parameter-driven shapes plus per-run scatter in 30 other
+    shapes: exactly those components are resolved, the rest are scatter (noise share ~1)."""
+    for rank in (2, 3):
+        r = pressure_components(_curves_of_rank(rank, noise=0.05, seed=rank))
+        assert r["groups"] == 12 and r["dof_bed_to_bed"] == 36 and r["tested"] == 10
+        assert r["resolved"] == rank and r["resolved_components"] == list(range(1, rank + 1))
+        assert r["signal_share_resolved"] > 0.99
+        for c in r["components"][:rank]:
+            assert c["noise_share"] < 0.05 and c["p_value"] < 1e-6
+        shares = [c["noise_share"] for c in r["components"][rank:]]
+        assert 0.6 < np.median(shares) < 1.6  # scatter only: variance ~ bed-to-bed
+    # no replicate group: nothing to compare against
+    assert pressure_components(synthetic_dataset(20, seed=1)) is None
+    with pytest.raises(ConfigError, match="alpha"):
+        pressure_components(_curves_of_rank(2, 0.05), alpha=1.5)

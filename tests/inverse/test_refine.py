@@ -247,6 +247,10 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
     assert twins.main(argv) == 0
     rep = json.loads((tmp_path / "t.json").read_text())
     assert [r["round"] for r in rep["per_round"]] == [r["round"] for r in state["rounds"]]
+    from calendaring import pressure_components, read_dataset
+
+    pc = pressure_components(read_dataset(ds_path))
+    assert (rep["pressure_components"] or {}).get("resolved") == (pc or {}).get("resolved")
     for r, row in zip(state["rounds"], rep["per_round"], strict=True):
         rec = json.loads((folder / "rounds" / f"r{r['round']:02d}"
                           / "recalibration-floor.json").read_text())
