@@ -140,6 +140,10 @@ def _calibrate_target(model, target: Target, *, optimiser: OptimiserConfig | Non
         t1 = time.perf_counter()
         result["identifiability"] = identifiability_report(loss, u, free, space.names,
                                                            profile_mode=profile_mode)
+        pc = (getattr(model, "info", None) or {}).get("dataset", {}).get("pressure_components")
+        if pc:  # the training curves' resolvable components bound what one curve pins
+            result["identifiability"]["curve_components"] = {
+                **pc, "free_parameters": int(np.sum(free))}
         timings["identifiability"] = time.perf_counter() - t1
     post_summary = None
     if posterior is not None:

@@ -138,6 +138,13 @@ def format_table4(result: dict) -> str:
                      f"{ident['hessian']['condition_number']:.3g}; {len(sloppy)} sloppy "
                      f"direction(s); flat {ident['profiles']['mode']} profiles: "
                      f"{', '.join(flat) if flat else 'none'}")
+        cc = ident.get("curve_components")
+        if cc:
+            lines.append(f"the model's training curves resolve {cc['resolved']} of "
+                         f"{cc['tested']} principal components above the bed-to-bed scatter: "
+                         f"one curve can pin at most {cc['resolved']} combination(s) of the "
+                         f"{cc['free_parameters']} free parameters (the breakage centroids "
+                         "add at most 2)")
     post = result.get("posterior")
     if post:
         d = post["diagnostics"]

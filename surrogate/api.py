@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring import ConfigError, Dataset, ParameterSpace, bin_centres
+from calendaring import ConfigError, Dataset, ParameterSpace, bin_centres, pressure_components
 from surrogate.checkpoint import (
     CheckpointError,
     info_to_json,
@@ -329,6 +329,12 @@ class SurrogateModel:
                          "train_seconds": r.seconds} for r in results],
             "n_parameters_per_member": r0.model.n_parameters(),
         }
+        pc = pressure_components(ds)
+        if pc is not None:  # what one curve of this dataset can tell (inverse reports it)
+            meta["dataset"]["pressure_components"] = {
+                k: pc[k] for k in ("resolved", "tested", "alpha", "groups", "dof_bed_to_bed",
+                                   "signal_share_resolved")} | {
+                "noise_share": [c["noise_share"] for c in pc["components"]]}
         meta.update(info or {})
         gp = None
         if getattr(r0.config, "pressure_head", "mlp") == "gp":

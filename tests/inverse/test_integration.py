@@ -66,6 +66,23 @@ def test_posterior_and_identifiability_run_on_the_real_model(model_file, truth):
     assert r["posterior"]["parameters"]["phi"]["std_ratio"] < 0.8
 
 
+def test_the_calibration_reports_how_many_combinations_one_curve_can_pin(model_file, truth):
+    """A model whose training curves resolve 2 components above the bed-to-bed scatter: the
+    identifiability report carries the bound and the summary says it."""
+    from inverse.report import format_table4
+
+    m = surrogate.load(model_file)
+    m.info["dataset"]["pressure_components"] = {
+        "resolved": 2, "tested": 10, "alpha": 0.05, "groups": 19, "dof_bed_to_bed": 60,
+        "signal_share_resolved": 0.999, "noise_share": [0.0, 0.09] + [1.0] * 8}
+    oc = calibrate_target(m, row_target(m, truth, 0),
+                          optimiser=OptimiserConfig(iterations=40, restarts=1),
+                          fix={"damage_constant": 5.0}, profile_mode="slice")
+    cc = oc.result["identifiability"]["curve_components"]
+    assert cc["resolved"] == 2 and cc["free_parameters"] == 7
+    assert "pin at most 2 combination(s) of the 7 free parameters" in format_table4(oc.result)
+
+
 def test_validate_on_held_out_rows(model_file, truth, tmp_path):
     m = surrogate.load(model_file)
     ds_path = write_dataset(tmp_path / "holdout.h5", truth)

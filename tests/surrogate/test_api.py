@@ -177,3 +177,14 @@ def test_checkpoint_fingerprint_follows_the_weights_not_the_time_stamp(model, tm
     obj["members"][0][first].view(-1)[0] += 1e-6
     c = write_checkpoint(tmp_path / "c.pt", obj)
     assert checkpoint_fingerprint(c) != checkpoint_fingerprint(a)
+
+
+def test_the_model_records_what_one_training_curve_can_tell(model, tiny_ds, tmp_path):
+    """`from_training` keeps the dataset's resolvable pressure components (the replicate
+    groups against the design spread) in the checkpoint, for the calibration's report."""
+    from calendaring import pressure_components
+
+    pc = pressure_components(tiny_ds)
+    rec = surrogate.load(model.save(tmp_path / "m.pt")).info["dataset"]["pressure_components"]
+    assert rec["resolved"] == pc["resolved"] >= 1 and rec["tested"] == pc["tested"]
+    assert rec["noise_share"] == [c["noise_share"] for c in pc["components"]]
