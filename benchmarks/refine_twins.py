@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calendaring import pressure_components, read_dataset, write_json, write_text
+from calendaring import pressure_components, read_dataset, save_figure, write_json, write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -92,6 +92,7 @@ def cmd_report(args) -> int:
         print(f"no twin folders with refine.json under {out}", file=sys.stderr)
         return 2
     names = list(twins[0]["rounds"][0]["posterior"])
+    twin_rows = [twin_table(folder, t) for folder, t in zip(folders, twins, strict=True)]
     n_rounds = min(len(t["rounds"]) for t in twins)
     per_round = []
     for r in range(n_rounds):
@@ -106,12 +107,9 @@ def cmd_report(args) -> int:
                             for n in names},
                "abs_optimum_error_unit": {n: float(np.mean([
                    abs(x["truth"][n]["optimum_error_unit"]) for x in recs])) for n in names}}
-        se = [width_standard_error(np.load(npz)["samples_unit"],
-                                   int(t["request"]["posterior"]["walkers"]))
-              for t, folder in zip(twins, folders, strict=True)
-              if (npz := folder / "rounds" / f"r{r:02d}" / "posterior.npz").exists()]
+        se = [twin_rows[k][r]["mean_width_se_unit"] for k in range(len(twins))]
         row["mean_width_se_unit"] = (float(np.sqrt(np.sum(np.square(se)))) / len(se)
-                                     if len(se) == len(recs) else None)
+                                     if None not in se else None)
         e = [x["error_before_training"]["pressure_rmse_normalised"] for x in recs
              if x.get("error_before_training")]
         row["out_of_sample_rmse_mean"] = float(np.mean(e)) if e else None
@@ -136,8 +134,8 @@ def cmd_report(args) -> int:
                     x["principal_sd_unit_default_sigma"][0] for x in fl]))
         per_round.append(row)
     rep = {"twins": [{"target": t["request"]["target"], "stop_reason": t["stop_reason"],
-                      "runs_done": t["runs_done"],
-                      "rounds": len(t["rounds"])} for t in twins],
+                      "runs_done": t["runs_done"], "rounds": len(t["rounds"]),
+                      "per_round": rows} for t, rows in zip(twins, twin_rows, strict=True)],
            "model": twins[0]["request"]["model"], "dataset": twins[0]["request"]["dataset"],
            "config": twins[0]["request"]["config"], "per_round": per_round}
     ds_path = Path(rep["dataset"])
@@ -161,9 +159,39 @@ def cmd_report(args) -> int:
         lines.append(f"| {row['round']} | {row['runs_done_mean']:.0f} | "
                      f"{row['model_error_sigma_mean']:.4f} | {oos} | "
                      f"{width} | " + " | ".join(cells) + " |")
-    lines += ["", "Cells: mean 90 % interval width (unit range) over the twins, and in "
-              "brackets the share of twins whose truth lies inside. The mean width's +- is "
-              "its MCMC sampling error, estimated from four interleaved sets of walkers."]
+    lines += ["", f"Rounds 0-{n_rounds - 1}, the rounds every twin reached. Cells: mean 90 % "
+              "interval width (unit range) over the twins, and in brackets the share of twins "
+              "whose truth lies inside. The mean width's +- is its MCMC sampling error, "
+              "estimated from four interleaved sets of walkers."]
+    lines += ["", "Per twin, every round: the error of the round's new runs before training "
+              "on them, and the posterior with the default observation sigma / at the "
+              "run-to-run floor / as a perfect surrogate at that floor:", "",
+              "| twin (row) | round | runs | failed | sigma | out-of-sample RMSE (MPa) | "
+              "ensemble 2-sigma coverage | mean 90 % width | smallest principal sd | "
+              "truths inside | optimum error |", "|" + "---|" * 11]
+    for t, rows in zip(twins, twin_rows, strict=True):
+        for x in rows:
+            e = x["out_of_sample"]
+            oos = (f"{e['pressure_rmse_normalised']:.4f} ({e['pressure_rmse_MPa']:.1f})"
+                   if e else "-")
+            cov = f"{e['ensemble_coverage_2sigma']:.2f}" if e else "-"
+            se = x["mean_width_se_unit"]
+            w = [f"{x['mean_width_unit']:.3f}" + (f" +- {se:.3f}" if se is not None else "")]
+            sd = [_fmt(x["smallest_principal_sd_unit"])]
+            inside = [f"{x['truths_inside']}"]
+            for kind in RECALIBRATIONS:
+                rc = x.get(kind)
+                w.append(_fmt(rc and rc["mean_width_unit"]))
+                sd.append(_fmt(rc and rc["smallest_principal_sd_unit"]))
+                inside.append(f"{rc['truths_inside']}" if rc else "-")
+            lines.append(f"| {t['request']['target']['row']} | {x['round']} | "
+                         f"{x['runs_done_total']} | {x['runs_failed']} | "
+                         f"{x['model_error_sigma']:.4f} | {oos} | {cov} | {' / '.join(w)} | "
+                         f"{' / '.join(sd)} | {' / '.join(inside)} of {x['parameters']} | "
+                         f"{x['abs_optimum_error_unit_mean']:.3f} |")
+    lines += ["", "Runs: new DEM runs finished up to this round; sigma: the surrogate error in "
+              "the round's likelihood (normalised); optimum error: the mean absolute error of "
+              "the calibrated optimum over the parameters (unit range)."]
     titles = {"floor_sigma": "The same rounds' models with the observation sigma at the "
                              "run-to-run floor ({:.4f} normalised; `recalibrate`):",
               "perfect_surrogate": "A perfect surrogate at the same floor ({:.4f}; model error "
@@ -199,9 +227,117 @@ def cmd_report(args) -> int:
                   "variance. Noise share (bed-to-bed / total variance) of components 1-"
                   f"{pc['tested']}: " + ", ".join(f"{c['noise_share']:.2f}"
                                                   for c in pc["components"]) + "."]
+    plot_report(rep, results / f"{args.name}.png")
+    lines += ["", f"Figure: `{args.name}.png`."]
     write_text(results / f"{args.name}.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
+
+
+def _fmt(x, digits: int = 3) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
+
+
+def round_width_se(folder: Path, r: int, walkers: int) -> float | None:
+    """The MCMC sampling error of round ``r``'s mean 90 % width, from the round's posterior
+    samples, and kept beside the round (``width-se.json``: the samples themselves are not
+    kept, so a report made later, elsewhere, still has it); None when neither is there."""
+    rnd = folder / "rounds" / f"r{r:02d}"
+    kept = rnd / "width-se.json"
+    if (rnd / "posterior.npz").exists():
+        se = width_standard_error(np.load(rnd / "posterior.npz")["samples_unit"], walkers)
+        if not kept.exists() or json.loads(kept.read_text())["mean_width_se_unit"] != se:
+            write_json(kept, {"mean_width_se_unit": se, "walkers": walkers, "groups": 4})
+        return se
+    return json.loads(kept.read_text())["mean_width_se_unit"] if kept.exists() else None
+
+
+def twin_table(folder: Path, state: dict) -> list[dict]:
+    """One twin's rounds, each with its recalibrations where they exist."""
+    walkers = int(state["request"]["posterior"]["walkers"])
+    rows, total = [], 0
+    for rec in state["rounds"]:
+        r = rec["round"]
+        total += rec["runs_done"]
+        e = rec.get("error_before_training") or None
+        x = {"round": r, "runs_done_total": total, "runs_failed": len(rec.get("failed") or []),
+             "model_error_sigma": rec["model_error_sigma"],
+             "out_of_sample": e and {k: e[k] for k in (
+                 "n_runs", "pressure_rmse_normalised", "pressure_rmse_MPa",
+                 "abs_error_MPa_at_stroke", "ensemble_coverage_2sigma") if k in e},
+             "mean_width_unit": rec["mean_width_unit"],
+             "mean_width_se_unit": round_width_se(folder, r, walkers),
+             "smallest_principal_sd_unit": None, "parameters": len(rec["truth"]),
+             "truths_inside": int(sum(v["inside_ci90"] for v in rec["truth"].values())),
+             "abs_optimum_error_unit_mean": float(np.mean([
+                 abs(v["optimum_error_unit"]) for v in rec["truth"].values()]))}
+        for kind in RECALIBRATIONS:
+            path = folder / "rounds" / f"r{r:02d}" / f"recalibration-{kind}.json"
+            if not path.exists():
+                continue
+            rc = json.loads(path.read_text())
+            x[kind] = {"observation_sigma_normalised": rc["observation_sigma_normalised"],
+                       "mean_width_unit": rc["mean_width_unit"],
+                       "smallest_principal_sd_unit": rc["principal_sd_unit"][0],
+                       "truths_inside": int(sum(v["inside_ci90"]
+                                                for v in rc["truth"].values()))}
+            if "principal_sd_unit_default_sigma" in rc:
+                x["smallest_principal_sd_unit"] = rc["principal_sd_unit_default_sigma"][0]
+        rows.append(x)
+    return rows
+
+
+def plot_report(rep: dict, path: Path) -> Path:
+    """Per twin and round: the out-of-sample error of the new runs against the run-to-run
+    floor, the mean 90 % width and the best-pinned axis's sd, each with the default
+    observation sigma (solid), at the floor (dashed) and as a perfect surrogate (dotted)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
+    styles = {None: "-", "floor": "--", "perfect": ":"}
+    floor = None
+    for k, t in enumerate(rep["twins"]):
+        rows, colour = t["per_round"], f"C{k}"
+        label = f"twin row {t['target']['row']}"
+        r = [x["round"] for x in rows]
+        oos = [(x["round"], x["out_of_sample"]["pressure_rmse_normalised"]) for x in rows
+               if x["out_of_sample"]]
+        if oos:
+            ax[0].plot(*zip(*oos, strict=True), "o-", color=colour, label=label)
+        for kind, ls in styles.items():
+            w = [x[kind]["mean_width_unit"] if kind else x["mean_width_unit"]
+                 for x in rows if kind is None or kind in x]
+            sd = [x[kind]["smallest_principal_sd_unit"] if kind
+                  else x["smallest_principal_sd_unit"] for x in rows
+                  if kind is None or kind in x]
+            rr = [x["round"] for x in rows if kind is None or kind in x]
+            ax[1].plot(rr, w, ls, marker="o", color=colour, label=label if kind is None
+                       else None)
+            if any(v is not None for v in sd):
+                ax[2].plot([a for a, v in zip(rr, sd, strict=True) if v is not None],
+                           [v for v in sd if v is not None], ls, marker="o", color=colour)
+            if kind == "floor" and kind in rows[0]:
+                floor = rows[0][kind]["observation_sigma_normalised"]
+        ax[0].plot(r[:1], [rows[0]["model_error_sigma"]], "s", color=colour, mfc="none")
+    if floor is not None:
+        ax[0].axhline(floor, color="k", lw=0.8, ls="--", label="run-to-run floor")
+    for kind, ls in styles.items():
+        ax[2].plot([], [], ls, color="k", label={None: "default sigma", "floor": "at the floor",
+                                                 "perfect": "perfect surrogate"}[kind])
+    ax[0].set(xlabel="round", ylabel="pressure RMSE (normalised)",
+              title="surrogate error on the new runs\n(square: round 0's estimate)")
+    ax[1].set(xlabel="round", ylabel="mean 90 % width (unit range)",
+              title="interval width (prior 0.9)")
+    ax[2].set(xlabel="round", ylabel="sd along the best-pinned axis (unit)",
+              title="best-pinned combination")
+    ax[0].legend(fontsize=8)
+    ax[2].legend(fontsize=8)
+    for a in ax:
+        a.xaxis.get_major_locator().set_params(integer=True)
+    return save_figure(fig, path)
 
 
 def floor_sigma(model, ds) -> float:

@@ -259,6 +259,19 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
         assert row["floor_sigma"]["mean_width_unit"] == rec["mean_width_unit"]
         assert set(rec["truth"]) == set(r["truth"])
         assert 0 < row["mean_width_se_unit"] < row["mean_width_unit"]
+    # per twin and round: the same figures, the width's sampling error kept beside the round
+    (twin,) = rep["twins"]
+    assert [x["round"] for x in twin["per_round"]] == [r["round"] for r in state["rounds"]]
+    for r, x in zip(state["rounds"], twin["per_round"], strict=True):
+        assert x["mean_width_unit"] == r["mean_width_unit"]
+        assert x["truths_inside"] == sum(v["inside_ci90"] for v in r["truth"].values())
+        assert x["floor"]["mean_width_unit"] == json.loads(
+            (folder / "rounds" / f"r{r['round']:02d}" / "recalibration-floor.json")
+            .read_text())["mean_width_unit"]
+        assert (x["out_of_sample"] is None) == (r["round"] == 0)
+    assert (tmp_path / "t.png").stat().st_size > 0
+    assert "| 41 | 0 |" in (tmp_path / "t.md").read_text()
+    se = [x["mean_width_se_unit"] for x in twin["per_round"]]
     stamp = {p: p.stat().st_mtime_ns for p in folder.glob("rounds/*/recalibration-floor.json")}
     assert twins.main(argv) == 0  # nothing recalibrated twice
     assert {p: p.stat().st_mtime_ns for p in stamp} == stamp
@@ -279,6 +292,18 @@ def test_the_twins_recalibrate_every_round_at_a_given_observation_sigma(refined,
         assert row["perfect_surrogate"]["mean_width_unit"] == rec["mean_width_unit"]
         assert row["floor_sigma"]["model_error_sigma_mean"] == r["model_error_sigma"]
     assert "A perfect surrogate" in (tmp_path / "t.md").read_text()
+    for x in rep["twins"][0]["per_round"]:
+        rec = json.loads((folder / "rounds" / f"r{x['round']:02d}"
+                          / "recalibration-perfect.json").read_text())
+        assert x["perfect"]["truths_inside"] == sum(v["inside_ci90"]
+                                                    for v in rec["truth"].values())
+    for npz in folder.glob("rounds/*/posterior.npz"):
+        npz.unlink()  # the samples are not kept; a later report takes the kept error
+    assert twins.main(["report", "--out", str(folder.parent), "--name", "t",
+                       "--results-dir", str(tmp_path)]) == 0
+    again = json.loads((tmp_path / "t.json").read_text())
+    assert [x["mean_width_se_unit"] for x in again["twins"][0]["per_round"]] == se
+    assert None not in se
 
 
 def test_one_given_dem_seed_puts_every_new_run_on_one_bed(setup, tmp_path):
