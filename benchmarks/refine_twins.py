@@ -92,7 +92,9 @@ def cmd_report(args) -> int:
         print(f"no twin folders with refine.json under {out}", file=sys.stderr)
         return 2
     names = list(twins[0]["rounds"][0]["posterior"])
-    twin_rows = [twin_table(folder, t) for folder, t in zip(folders, twins, strict=True)]
+    recals = [recalibrations(folder, t) for folder, t in zip(folders, twins, strict=True)]
+    twin_rows = [twin_table(folder, t, rc)
+                 for folder, t, rc in zip(folders, twins, recals, strict=True)]
     n_rounds = min(len(t["rounds"]) for t in twins)
     per_round = []
     for r in range(n_rounds):
@@ -114,11 +116,9 @@ def cmd_report(args) -> int:
              if x.get("error_before_training")]
         row["out_of_sample_rmse_mean"] = float(np.mean(e)) if e else None
         for kind, key in RECALIBRATIONS.items():
-            files = [folder / "rounds" / f"r{r:02d}" / f"recalibration-{kind}.json"
-                     for folder in folders]
-            if not all(f.exists() for f in files):
+            if not all(kind in rc[r] for rc in recals):
                 continue
-            fl = [json.loads(f.read_text()) for f in files]
+            fl = [rc[r][kind] for rc in recals]
             row[key] = {
                 "observation_sigma_normalised": fl[0]["observation_sigma_normalised"],
                 "model_error_sigma_mean": float(np.mean([x["model_error_sigma"] for x in fl])),
@@ -252,11 +252,20 @@ def round_width_se(folder: Path, r: int, walkers: int) -> float | None:
     return json.loads(kept.read_text())["mean_width_se_unit"] if kept.exists() else None
 
 
-def twin_table(folder: Path, state: dict) -> list[dict]:
-    """One twin's rounds, each with its recalibrations where they exist."""
+def recalibrations(folder: Path, state: dict) -> list[dict]:
+    """Per round of one twin: ``{kind: recalibration-<kind>.json}`` for those that exist."""
+    rounds = folder / "rounds"
+    return [{kind: json.loads(path.read_text()) for kind in RECALIBRATIONS
+             if (path := rounds / f"r{rec['round']:02d}" / f"recalibration-{kind}.json")
+             .exists()} for rec in state["rounds"]]
+
+
+def twin_table(folder: Path, state: dict, recals: list[dict]) -> list[dict]:
+    """One twin's rounds, each with its recalibrations (``recalibrations``) where they
+    exist."""
     walkers = int(state["request"]["posterior"]["walkers"])
     rows, total = [], 0
-    for rec in state["rounds"]:
+    for rec, found in zip(state["rounds"], recals, strict=True):
         r = rec["round"]
         total += rec["runs_done"]
         e = rec.get("error_before_training") or None
@@ -271,11 +280,7 @@ def twin_table(folder: Path, state: dict) -> list[dict]:
              "truths_inside": int(sum(v["inside_ci90"] for v in rec["truth"].values())),
              "abs_optimum_error_unit_mean": float(np.mean([
                  abs(v["optimum_error_unit"]) for v in rec["truth"].values()]))}
-        for kind in RECALIBRATIONS:
-            path = folder / "rounds" / f"r{r:02d}" / f"recalibration-{kind}.json"
-            if not path.exists():
-                continue
-            rc = json.loads(path.read_text())
+        for kind, rc in found.items():
             x[kind] = {"observation_sigma_normalised": rc["observation_sigma_normalised"],
                        "mean_width_unit": rc["mean_width_unit"],
                        "smallest_principal_sd_unit": rc["principal_sd_unit"][0],
@@ -308,14 +313,12 @@ def plot_report(rep: dict, path: Path) -> Path:
         if oos:
             ax[0].plot(*zip(*oos, strict=True), "o-", color=colour, label=label)
         for kind, ls in styles.items():
-            w = [x[kind]["mean_width_unit"] if kind else x["mean_width_unit"]
-                 for x in rows if kind is None or kind in x]
-            sd = [x[kind]["smallest_principal_sd_unit"] if kind
-                  else x["smallest_principal_sd_unit"] for x in rows
-                  if kind is None or kind in x]
-            rr = [x["round"] for x in rows if kind is None or kind in x]
-            ax[1].plot(rr, w, ls, marker="o", color=colour, label=label if kind is None
-                       else None)
+            sel = [x for x in rows if kind is None or kind in x]
+            rr = [x["round"] for x in sel]
+            vals = [x[kind] if kind else x for x in sel]
+            sd = [v["smallest_principal_sd_unit"] for v in vals]
+            ax[1].plot(rr, [v["mean_width_unit"] for v in vals], ls, marker="o", color=colour,
+                       label=label if kind is None else None)
             if any(v is not None for v in sd):
                 ax[2].plot([a for a, v in zip(rr, sd, strict=True) if v is not None],
                            [v for v in sd if v is not None], ls, marker="o", color=colour)
