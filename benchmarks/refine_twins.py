@@ -13,8 +13,10 @@ widths (unit range), the optimum's error and the coverage of the truths over the
     python benchmarks/refine_twins.py report --out studies/refine
 
 ``run`` is resumable (rerun it; each twin's refinement resumes where it stopped). ``report``
-writes ``benchmarks/results/<name>.json`` and ``.md`` (``--name``, default ``refine_twins``)
-from the twins' ``refine.json``.
+writes ``benchmarks/results/<name>.json``, ``.md`` and ``.png`` (``--name``, default
+``refine_twins``) from the twins' ``refine.json`` and round records: the means over the twins
+per round, and every twin's rounds. Each round's MCMC width error is kept beside it
+(``width-se.json``), since the posterior samples it comes from are not kept.
 
 A refinement can only narrow what the surrogate's error widens. ``recalibrate`` separates the
 two: it calibrates every finished round's model again on its twin with the observation sigma
